@@ -1,0 +1,1 @@
+"""The ``lhf`` command line: one parser, thin commands that call importable functions."""

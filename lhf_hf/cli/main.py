@@ -1,0 +1,44 @@
+"""Entry point of the ``lhf`` console script (also ``python -m lhf_hf``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from lhf_hf import __version__
+
+from . import envs
+
+#: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
+COMMANDS = [envs]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lhf",
+        description="Learning history filtering for in-context RL on the Hugging Face stack.",
+    )
+    parser.add_argument("--version", action="version", version=f"lhf_hf {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (KeyError, ValueError, IndexError, TypeError, ImportError, FileNotFoundError) as exc:
+        # User errors: one clear line, no traceback.
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""The environment registry: one ``EnvSpec`` per env id, and the public ``make``/``task_split``.
+
+Adding an environment means registering a spec here-by-import (see ``gridworlds.py`` and
+``metaworld_ml1.py``); collectors, trainers and evaluators only ever go through this module.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """Everything the rest of lhf_hf needs to know about one environment id.
+
+    env_id: registry key, e.g. ``darkroom`` or ``metaworld-reach``.
+    family: ``gridworld`` or ``metaworld``.
+    description: one line for ``lhf envs``.
+    horizon: episode length in steps (episodes end only there).
+    num_tasks: number of task indices accepted by ``make``.
+    num_train_tasks: size of the train part of a split (the rest are test tasks).
+    state_space: the observation space (gymnasium), without building an environment.
+    action_space: the action space (gymnasium).
+    factory: ``factory(task, split_seed) -> gymnasium.Env``.
+    split: ``split(seed) -> (train_tasks, test_tasks)``.
+    optimal_returns: ``() -> (num_tasks,)`` optimal episode return per task, or None where the
+        optimum is not known in closed form (Meta-World: we report success instead).
+    seeded_tasks: True when the task *content* depends on the split seed (Meta-World ML1 draws its
+        50 train and 50 test goals from the seed); gridworld tasks are global and only the split
+        depends on the seed.
+    extra: optional dependency group needed to build the env (``pip install 'lhf_hf[extra]'``).
+    """
+
+    env_id: str
+    family: str
+    description: str
+    horizon: int
+    num_tasks: int
+    num_train_tasks: int
+    state_space: gym.Space
+    action_space: gym.Space
+    factory: Callable[[int, int], gym.Env] = field(repr=False)
+    split: Callable[[int], tuple[list[int], list[int]]] = field(repr=False)
+    optimal_returns: Callable[[], np.ndarray] | None = field(default=None, repr=False)
+    seeded_tasks: bool = False
+    extra: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.env_id or self.env_id != self.env_id.strip().lower():
+            raise ValueError(
+                f"EnvSpec.env_id must be a non-empty lower-case id, got {self.env_id!r}"
+            )
+        if self.family not in ("gridworld", "metaworld"):
+            raise ValueError(
+                f"EnvSpec.family must be 'gridworld' or 'metaworld', got {self.family!r}"
+            )
+        if self.horizon < 1:
+            raise ValueError(f"EnvSpec.horizon must be >= 1, got {self.horizon!r}")
+        if not 0 < self.num_train_tasks < self.num_tasks:
+            raise ValueError(
+                f"EnvSpec.num_train_tasks must be in (0, num_tasks={self.num_tasks}), got {self.num_train_tasks!r}"
+            )
+
+    @property
+    def num_test_tasks(self) -> int:
+        return self.num_tasks - self.num_train_tasks
+
+    @property
+    def is_discrete(self) -> bool:
+        return isinstance(self.action_space, gym.spaces.Discrete)
+
+    def check_task(self, task) -> int:
+        """Return ``task`` as an int, or raise a clear error when it is not a valid task index."""
+        if isinstance(task, bool) or not isinstance(task, int | np.integer):
+            raise TypeError(f"{self.env_id}: task must be an int index, got {task!r}")
+        if not 0 <= int(task) < self.num_tasks:
+            raise IndexError(
+                f"{self.env_id}: task index {task} out of range; valid tasks are 0..{self.num_tasks - 1}"
+            )
+        return int(task)
+
+    def summary(self) -> dict:
+        """A JSON-ready row for ``lhf envs``."""
+        opt = None
+        if self.optimal_returns is not None:
+            r = self.optimal_returns()
+            opt = {"min": float(r.min()), "max": float(r.max()), "mean": round(float(r.mean()), 4)}
+        return {
+            "env_id": self.env_id,
+            "family": self.family,
+            "description": self.description,
+            "horizon": self.horizon,
+            "num_tasks": self.num_tasks,
+            "num_train_tasks": self.num_train_tasks,
+            "num_test_tasks": self.num_test_tasks,
+            "state_space": describe_space(self.state_space),
+            "action_space": describe_space(self.action_space),
+            "optimal_return": opt,
+            "metric": "return" if opt is not None else "success rate",
+            "seeded_tasks": self.seeded_tasks,
+            "extra": self.extra,
+        }
+
+
+def describe_space(space: gym.Space) -> str:
+    """Short readable form of a gymnasium space, e.g. ``Discrete(5)`` or ``Box(int64, (2,), [0, 8])``."""
+    if isinstance(space, gym.spaces.Discrete):
+        return f"Discrete({int(space.n)})"
+    if isinstance(space, gym.spaces.Box):
+        lo, hi = np.unique(space.low), np.unique(space.high)
+        bounds = f", [{lo[0]:g}, {hi[0]:g}]" if lo.size == 1 and hi.size == 1 else ""
+        return f"Box({space.dtype}, {tuple(space.shape)}{bounds})"
+    return str(space)
+
+
+_REGISTRY: dict[str, EnvSpec] = {}
+
+
+def register(spec: EnvSpec) -> EnvSpec:
+    """Add ``spec`` to the registry; ids are unique."""
+    if spec.env_id in _REGISTRY:
+        raise ValueError(f"environment {spec.env_id!r} is already registered")
+    _REGISTRY[spec.env_id] = spec
+    return spec
+
+
+def list_env_ids() -> list[str]:
+    """All registered env ids, in registration order."""
+    return list(_REGISTRY)
+
+
+def get_spec(env_id: str) -> EnvSpec:
+    """The ``EnvSpec`` of ``env_id``; an unknown id raises a ``KeyError`` listing the valid ones."""
+    try:
+        return _REGISTRY[env_id]
+    except (KeyError, TypeError):
+        raise KeyError(f"unknown env id {env_id!r}; valid ids: {', '.join(_REGISTRY)}") from None
+
+
+def make(env_id: str, task: int, *, split_seed: int = 0, **kwargs) -> gym.Env:
+    """Build the gymnasium environment of ``task`` in ``env_id``.
+
+    split_seed only matters for envs whose task content depends on it (``spec.seeded_tasks``,
+    i.e. Meta-World ML1); gridworld task indices are global.  Extra keyword arguments are passed
+    to the environment's factory (none are accepted by the built-in envs).
+    """
+    spec = get_spec(env_id)
+    task = spec.check_task(task)
+    return spec.factory(task, split_seed, **kwargs)
+
+
+def task_split(env_id: str, seed: int = 0) -> tuple[list[int], list[int]]:
+    """(train, test) task indices of ``env_id`` for a split seed; disjoint and deterministic."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise TypeError(f"split seed must be an int, got {seed!r}")
+    return get_spec(env_id).split(int(seed))
+
+
+def shuffled_split(num_tasks: int, num_train: int, seed: int) -> tuple[list[int], list[int]]:
+    """The reference split: shuffle ``range(num_tasks)`` with Python's ``random`` seeded by ``seed``
+    and take the first ``num_train`` as train tasks.  ``random.Random(seed).shuffle`` draws the same
+    permutation as the reference's ``random.seed(seed); random.shuffle(...)`` without touching the
+    global RNG, so our splits equal the DICP code's for the same ``env_split_seed``.
+    """
+    order = list(range(num_tasks))
+    random.Random(seed).shuffle(order)
+    return order[:num_train], order[num_train:]

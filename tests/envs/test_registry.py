@@ -1,0 +1,103 @@
+"""Registry, public surface and task splits."""
+
+import random
+
+import pytest
+
+from lhf_hf.envs import get_spec, list_env_ids, make, task_split
+
+EXPECTED_SPLITS = {
+    "darkroom": (73, 8),
+    "darkroom-permuted": (108, 12),
+    "darkroom-large": (202, 23),  # round(225 * 0.9) = round(202.5) = 202 (Python rounds to even)
+    "dark-key-to-door": (6233, 328),
+}
+ML1 = [
+    "reach",
+    "reach-wall",
+    "button-press",
+    "basketball",
+    "door-unlock",
+    "push",
+    "soccer",
+    "hand-insert",
+]
+
+
+def test_list_env_ids():
+    assert list_env_ids() == list(EXPECTED_SPLITS) + [f"metaworld-{t}" for t in ML1]
+
+
+@pytest.mark.parametrize("env_id", list(EXPECTED_SPLITS))
+def test_split_sizes_disjoint_deterministic(env_id):
+    n_train, n_test = EXPECTED_SPLITS[env_id]
+    train, test = task_split(env_id, seed=0)
+    assert (len(train), len(test)) == (n_train, n_test)
+    assert set(train).isdisjoint(test) and set(train) | set(test) == set(range(n_train + n_test))
+    assert task_split(env_id, seed=0) == (train, test)
+    assert task_split(env_id, seed=1)[1] != test
+
+
+def test_split_equals_reference_algorithm():
+    # The DICP code: random.seed(env_split_seed); random.shuffle(list); first round(N * ratio) train.
+    for seed in (0, 1, 2):
+        tasks = list(range(81))
+        random.seed(seed)
+        random.shuffle(tasks)
+        assert task_split("darkroom", seed) == (tasks[:73], tasks[73:])
+
+
+def test_split_does_not_touch_global_rng():
+    random.seed(123)
+    expected = random.random()
+    random.seed(123)
+    task_split("dark-key-to-door", 5)
+    assert random.random() == expected
+
+
+def test_metaworld_split_is_fixed_50_50():
+    train, test = task_split("metaworld-reach", seed=3)
+    assert train == list(range(50)) and test == list(range(50, 100))
+
+
+def test_unknown_env_lists_valid_ids():
+    with pytest.raises(KeyError) as err:
+        make("darkroom-huge", 0)
+    msg = str(err.value)
+    assert "darkroom-huge" in msg and all(e in msg for e in list_env_ids())
+    with pytest.raises(KeyError, match="valid ids"):
+        task_split("nope")
+
+
+@pytest.mark.parametrize("task", [81, -1, 1000])
+def test_task_out_of_range(task):
+    with pytest.raises(IndexError, match=r"valid tasks are 0\.\.80"):
+        make("darkroom", task)
+
+
+def test_task_must_be_int():
+    with pytest.raises(TypeError, match="task must be an int"):
+        make("darkroom", 1.0)
+    with pytest.raises(TypeError, match="task must be an int"):
+        make("darkroom", True)
+
+
+def test_spec_summary_and_spaces():
+    s = get_spec("darkroom").summary()
+    assert s["optimal_return"] == {"min": 13.0, "max": 20.0, "mean": 16.5432}
+    assert s["state_space"] == "Box(int64, (2,), [0, 8])" and s["action_space"] == "Discrete(5)"
+    assert get_spec("darkroom-large").summary()["optimal_return"]["mean"] == pytest.approx(
+        43.53, abs=0.01
+    )
+    assert get_spec("darkroom-permuted").summary()["optimal_return"]["min"] == 35
+    assert get_spec("metaworld-push").summary()["metric"] == "success rate"
+
+
+def test_spec_validation():
+    from lhf_hf.envs.registry import EnvSpec
+
+    spec = get_spec("darkroom")
+    with pytest.raises(ValueError, match="num_train_tasks"):
+        EnvSpec(**{**spec.__dict__, "num_train_tasks": 81})
+    with pytest.raises(ValueError, match="family"):
+        EnvSpec(**{**spec.__dict__, "family": "atari"})
