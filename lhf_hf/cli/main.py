@@ -7,10 +7,10 @@ import sys
 
 from lhf_hf import __version__
 
-from . import envs
+from . import collect, derive, envs
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
-COMMANDS = [envs]
+COMMANDS = [envs, collect, derive]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,7 +33,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (KeyError, ValueError, IndexError, TypeError, ImportError, FileNotFoundError) as exc:
+    except (
+        KeyError,
+        ValueError,
+        IndexError,
+        TypeError,
+        ImportError,
+        FileNotFoundError,
+        FileExistsError,
+        RuntimeError,
+    ) as exc:
         # User errors: one clear line, no traceback.
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"lhf {args.command}: error: {msg}", file=sys.stderr)

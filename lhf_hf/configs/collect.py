@@ -1,0 +1,214 @@
+"""Configuration of learning-history collection (DESIGN.md section 3, paper appendix A.1)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+
+from lhf_hf.envs import get_spec
+
+PROTOCOLS = ("paper", "independent", "noisy")
+ALGOS = ("ppo", "sac")
+COLLECTORS = ("sb3",)
+
+
+@dataclass(frozen=True)
+class PPOSettings:
+    """SB3 PPO hyper-parameters that differ per env (paper Table "Key hyperparameters"); the rest
+    are SB3 defaults (MlpPolicy, GAE 0.95, clip 0.2, ent 0, vf 0.5, max grad norm 0.5).
+
+    n_steps: rollout length per environment copy between updates.
+    batch_size: minibatch size.
+    n_epochs: passes over each rollout.
+    learning_rate: Adam step size.
+    gamma: discount factor.
+    """
+
+    n_steps: int
+    batch_size: int
+    n_epochs: int
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+
+    def __post_init__(self) -> None:
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"PPOSettings.{name} must be >= 1, got {getattr(self, name)!r}")
+        if not 0 < self.learning_rate < 1:
+            raise ValueError(
+                f"PPOSettings.learning_rate must be in (0, 1), got {self.learning_rate!r}"
+            )
+        if not 0 < self.gamma <= 1:
+            raise ValueError(f"PPOSettings.gamma must be in (0, 1], got {self.gamma!r}")
+
+
+@dataclass(frozen=True)
+class SACSettings:
+    """SB3 SAC hyper-parameters for Meta-World (paper appendix A.1); the rest are SB3 defaults.
+
+    batch_size: minibatch size.
+    learning_rate: Adam step size of actor, critics and entropy coefficient.
+    gamma: discount factor.
+    learning_starts: environment steps (summed over copies) of uniform actions before updates.
+    """
+
+    batch_size: int = 128
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    learning_starts: int = 100
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1:
+            raise ValueError(f"SACSettings.batch_size must be >= 1, got {self.batch_size!r}")
+        if not 0 < self.learning_rate < 1:
+            raise ValueError(
+                f"SACSettings.learning_rate must be in (0, 1), got {self.learning_rate!r}"
+            )
+
+
+#: (n_steps, batch_size, n_epochs) per env id, or per family as a fallback (DESIGN.md section 3).
+PPO_PRESETS: dict[str, PPOSettings] = {
+    "darkroom": PPOSettings(n_steps=20, batch_size=50, n_epochs=20),
+    "darkroom-permuted": PPOSettings(n_steps=50, batch_size=50, n_epochs=20),
+    "darkroom-large": PPOSettings(n_steps=50, batch_size=50, n_epochs=20),
+    "dark-key-to-door": PPOSettings(n_steps=50, batch_size=100, n_epochs=10),
+    "metaworld": PPOSettings(n_steps=100, batch_size=200, n_epochs=20),
+}
+
+
+def ppo_preset(env_id: str) -> PPOSettings:
+    """The paper's PPO settings for ``env_id`` (by id, else by family)."""
+    spec = get_spec(env_id)
+    return PPO_PRESETS.get(env_id) or PPO_PRESETS[spec.family]
+
+
+def parse_tasks(
+    tasks: str | list[int] | tuple[int, ...], env_id: str, split_seed: int
+) -> list[int]:
+    """``all`` | ``train`` | ``test`` | ``"0,3,7"`` | a list of ints -> sorted unique task indices."""
+    spec = get_spec(env_id)
+    if isinstance(tasks, str):
+        key = tasks.strip().lower()
+        if key == "all":
+            return list(range(spec.num_tasks))
+        if key in ("train", "test"):
+            train, test = spec.split(split_seed)
+            return sorted(train if key == "train" else test)
+        try:
+            tasks = [int(t) for t in key.split(",") if t.strip()]
+        except ValueError:
+            raise ValueError(
+                f"tasks must be 'all', 'train', 'test' or a comma-separated list of ints, got {tasks!r}"
+            ) from None
+    out = sorted({spec.check_task(int(t)) for t in tasks})
+    if not out:
+        raise ValueError("tasks is empty: nothing to collect")
+    return out
+
+
+@dataclass
+class CollectConfig:
+    """How to collect learning histories.  Stored in the dataset's ``meta/info.json``.
+
+    env_id: registered env id (``lhf envs``).
+    tasks: ``all``, ``train``, ``test``, ``"0,3,7"`` or a list of task indices (resolved to a sorted list).
+    histories: learning histories per task (paper: 100).
+    steps: transitions per history; a multiple of the env's horizon (paper: 1000, Meta-World 10,000).
+    protocol: ``paper`` (one learner per task acting in ``histories`` parallel copies, one history per
+        copy), ``independent`` (one independently seeded learner per history), or ``noisy`` (``paper``
+        with ``noisy_fraction`` of the histories made by a uniform random policy instead).
+    algo: source RL algorithm, ``ppo`` (any env) or ``sac`` (continuous actions only).
+    collector: ``sb3`` (Stable-Baselines3; the reference).
+    seed: root seed; task t's learners are seeded from ``SeedSequence([seed, t])``.
+    split_seed: seed of the train/test split (and of the Meta-World goals).
+    workers: worker processes collecting tasks in parallel (default: all cores; 1 = in this process).
+        It does not change the data.
+    noisy_fraction: fraction of random histories under ``noisy``; their count is ``round(f * histories)``.
+    ppo: PPO settings; defaults to the paper's for the env.
+    sac: SAC settings.
+    """
+
+    env_id: str
+    tasks: str | list[int] = "all"
+    histories: int = 100
+    steps: int = 1000
+    protocol: str = "paper"
+    algo: str = "ppo"
+    collector: str = "sb3"
+    seed: int = 0
+    split_seed: int = 0
+    workers: int = field(default_factory=lambda: os.cpu_count() or 1)
+    noisy_fraction: float = 0.3
+    ppo: PPOSettings | None = None
+    sac: SACSettings = field(default_factory=SACSettings)
+
+    def __post_init__(self) -> None:
+        spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(
+                f"CollectConfig.protocol must be one of {PROTOCOLS}, got {self.protocol!r}"
+            )
+        if self.algo not in ALGOS:
+            raise ValueError(f"CollectConfig.algo must be one of {ALGOS}, got {self.algo!r}")
+        if self.collector not in COLLECTORS:
+            raise ValueError(
+                f"CollectConfig.collector must be one of {COLLECTORS}, got {self.collector!r}"
+            )
+        if self.algo == "sac" and spec.is_discrete:
+            raise ValueError(
+                f"CollectConfig.algo='sac' needs continuous actions; {self.env_id} has {spec.action_space}"
+            )
+        if self.histories < 1:
+            raise ValueError(f"CollectConfig.histories must be >= 1, got {self.histories!r}")
+        if self.steps < spec.horizon or self.steps % spec.horizon:
+            raise ValueError(
+                f"CollectConfig.steps must be a positive multiple of the horizon of {self.env_id} "
+                f"({spec.horizon}), got {self.steps!r}"
+            )
+        if self.workers < 1:
+            raise ValueError(f"CollectConfig.workers must be >= 1, got {self.workers!r}")
+        if not 0.0 <= self.noisy_fraction < 1.0:
+            raise ValueError(
+                f"CollectConfig.noisy_fraction must be in [0, 1), got {self.noisy_fraction!r}"
+            )
+        if self.protocol == "noisy" and self.histories - self.num_random_histories < 1:
+            raise ValueError(
+                f"CollectConfig: noisy protocol with {self.histories} histories leaves no learner histories"
+            )
+        if isinstance(self.ppo, dict):
+            self.ppo = PPOSettings(**self.ppo)
+        if isinstance(self.sac, dict):
+            self.sac = SACSettings(**self.sac)
+        if self.ppo is None:
+            self.ppo = ppo_preset(self.env_id)
+        self.tasks = parse_tasks(self.tasks, self.env_id, self.split_seed)
+
+    @property
+    def horizon(self) -> int:
+        return get_spec(self.env_id).horizon
+
+    @property
+    def episodes_per_history(self) -> int:
+        return self.steps // self.horizon
+
+    @property
+    def num_random_histories(self) -> int:
+        return round(self.noisy_fraction * self.histories) if self.protocol == "noisy" else 0
+
+    @property
+    def frames_per_task(self) -> int:
+        return self.histories * self.steps
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CollectConfig:
+        return cls(**d)
+
+    def identity(self) -> dict:
+        """The fields that determine the data (``workers`` does not): equal identity = same dataset."""
+        d = self.to_dict()
+        d.pop("workers")
+        return d

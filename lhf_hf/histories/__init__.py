@@ -1,0 +1,6 @@
+"""Learning-history datasets: LeRobot v3.0 layout plus the lhf extension tables (DESIGN.md 4)."""
+
+from .reader import DatasetFormatError, HistoryDataset, load_histories
+from .schema import TaskHistories
+
+__all__ = ["DatasetFormatError", "HistoryDataset", "TaskHistories", "load_histories"]

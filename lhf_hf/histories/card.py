@@ -1,0 +1,198 @@
+"""The dataset card (README.md) of a learning-history dataset, from ``dataset_cards/``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lhf_hf import constants as C
+
+from .io import write_text_atomic
+from .plots import learning_curves, plot_learning_curve
+
+TEMPLATES = Path(__file__).resolve().parents[2] / "dataset_cards"
+
+COLUMN_MEANING = {
+    C.OBS: "state the action was taken in",
+    C.ACTION: "executed action (continuous: after clipping)",
+    C.REWARD: "reward of the transition",
+    C.DONE: "last step of the episode (the horizon)",
+    C.NEXT_OBS: "true next state (the final state at an episode end, not the reset state)",
+    C.OPTIMAL_ACTION: "oracle action in `observation.state` (DPT label)",
+    C.SUCCESS: "the env's success flag after the step",
+    C.INDEX: "global frame index",
+    C.FRAME_INDEX: "step within the episode",
+    C.EPISODE_INDEX: "global episode index",
+    C.TASK_INDEX: "env task index (see meta/tasks.parquet)",
+    C.HISTORY_INDEX: "global history index (see meta/histories)",
+    C.TIMESTAMP: f"frame_index / fps (fps = {C.FPS})",
+}
+
+
+def template_path(name: str) -> Path:
+    path = TEMPLATES / name
+    if not path.exists():
+        raise FileNotFoundError(
+            f"card template {path} is missing (install lhf_hf from a source checkout: pip install -e .)"
+        )
+    return path
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.2f}"
+
+
+def render_card(ds, load_path: str | None = None) -> str:
+    """Render the card text of dataset ``ds`` (a ``HistoryDataset``)."""
+    from huggingface_hub import DatasetCard, DatasetCardData
+
+    from lhf_hf.envs import get_spec
+
+    lhf, info = ds.lhf, ds.info
+    spec = get_spec(ds.env_id)
+    collect = lhf.get("collect", {})
+    algo = collect.get("algo", "?").upper()
+    n_tasks = info["total_tasks"]
+    size = info["total_frames"]
+    size_cat = next(
+        c
+        for lim, c in [
+            (1e3, "n<1K"),
+            (1e4, "1K<n<10K"),
+            (1e5, "10K<n<100K"),
+            (1e6, "100K<n<1M"),
+            (1e7, "1M<n<10M"),
+            (1e8, "10M<n<100M"),
+            (1e9, "100M<n<1B"),
+            (np.inf, "n>1B"),
+        ]
+        if size < lim
+    )
+    card_data = DatasetCardData(
+        license="apache-2.0",
+        pretty_name=f"{ds.env_id} learning histories ({algo}, {collect.get('protocol') or (lhf.get('derived_from') or {}).get('op', '?')})",
+        task_categories=["reinforcement-learning"],
+        tags=["LeRobot", "lhf", "in-context-rl", "learning-histories", ds.env_id],
+        size_categories=[size_cat],
+        configs=[
+            {"config_name": "default", "data_files": "data/*/*.parquet"},
+            {"config_name": "episodes", "data_files": "meta/episodes/*/*.parquet"},
+            {"config_name": "histories", "data_files": "meta/histories/*/*.parquet"},
+        ],
+    )
+    tasks = ds.tasks.to_pandas()
+    hist = ds.histories
+    returns = hist.data.column(C.RETURNS).to_pylist()
+    task_of = hist.data.column(C.TASK_INDEX).to_numpy()
+    optimal = spec.optimal_returns() if spec.optimal_returns is not None else None
+    rows = []
+    for t, split in zip(tasks[C.TASK_INDEX], tasks[C.SPLIT], strict=True):
+        r = np.asarray([returns[i] for i in np.flatnonzero(task_of == t)])  # (H, E)
+        rows.append(
+            {
+                "task": int(t),
+                "split": split,
+                "first": _fmt(r[:, 0].mean()),
+                "last": _fmt(r[:, -1].mean()),
+                "best": _fmt(r.max()),
+                "optimal": _fmt(optimal[t]) if optimal is not None else "-",
+            }
+        )
+    note = ""
+    if len(rows) > 40:
+        note = f" The first 40 of {len(rows)} tasks are shown; the histories table has them all."
+        rows = rows[:40]
+    kinds = hist.data.column(C.LEARNER).to_pylist()
+    learner_counts = ", ".join(f"{k}: {kinds.count(k) // n_tasks}" for k in dict.fromkeys(kinds))
+    schema = [
+        {
+            "name": name,
+            "dtype": f["dtype"],
+            "shape": tuple(f["shape"]),
+            "meaning": COLUMN_MEANING.get(name, ""),
+        }
+        for name, f in info["features"].items()
+    ]
+    settings = [(k, v) for k, v in collect.items() if k not in ("tasks",)]
+    if "collect" in lhf:
+        how = _how_collected(collect, lhf)
+    else:
+        how = "Derived from another dataset (see below); its collection settings are in `meta/info.json`."
+    derived = lhf.get("derived_from")
+    derived_note = ""
+    if derived:
+        derived_note = (
+            f"> **Derived dataset** (`{derived['op']}`): {derived['description']} "
+            f"Source: `{derived['source']}` (fingerprint `{derived['source_fingerprint'][:16]}`)."
+        )
+        src_collect = derived.get("source_collect") or {}
+        settings = [(k, v) for k, v in src_collect.items() if k not in ("tasks",)]
+        how = _how_collected(src_collect, lhf) if src_collect else how
+    versions = ", ".join(f"{k} {v}" for k, v in lhf.get("versions", {}).items())
+    n_train = int((tasks[C.SPLIT] == "train").sum())
+    card = DatasetCard.from_template(
+        card_data,
+        template_path=str(template_path("histories_card.md")),
+        pretty_name=card_data.pretty_name,
+        algo_name=algo,
+        env_id=ds.env_id,
+        env_description=spec.description,
+        derived_note=derived_note,
+        total_tasks=n_tasks,
+        n_train=n_train,
+        n_test=n_tasks - n_train,
+        split_seed=lhf["split_seed"],
+        histories=lhf["histories_per_task"],
+        learner_counts=learner_counts,
+        steps=lhf["steps_per_history"],
+        episodes_per_history=lhf["episodes_per_history"],
+        horizon=lhf["horizon"],
+        total_frames=info["total_frames"],
+        fingerprint=lhf["fingerprint"],
+        curve_path=C.CURVE_PATH,
+        how_collected=how,
+        settings=settings,
+        versions=versions,
+        schema=schema,
+        task_rows=rows,
+        task_table_note=note,
+        load_path=load_path or str(ds.root),
+    )
+    return str(card)
+
+
+def _how_collected(collect: dict, lhf: dict) -> str:
+    protocol = collect.get("protocol")
+    H = collect.get("histories")
+    desc = {
+        "paper": f"one {collect.get('algo', '').upper()} learner per task acting in {H} parallel copies of the task "
+        "(SB3 `DummyVecEnv`); each copy's stream of transitions is one history (the reference protocol).",
+        "independent": f"{H} independently seeded {collect.get('algo', '').upper()} learners per task, one stream each.",
+        "noisy": f"as `paper`, but {round(collect.get('noisy_fraction', 0.3) * 100)}% of each task's histories come "
+        "from a uniform random policy on their own copies of the task (they never feed the learner's "
+        "updates); the logged action is the executed action.",
+    }.get(protocol, str(protocol))
+    return (
+        f"Protocol `{protocol}`: {desc} Collector: `{collect.get('collector')}`. Task t's learners are "
+        f"seeded from `SeedSequence([{collect.get('seed')}, t])`. Episodes end only at the horizon "
+        f"(gymnasium `truncated`), and `{lhf.get('terminal_convention', 'truncation')}` is what the learner saw."
+    )
+
+
+def write_card(ds, load_path: str | None = None) -> None:
+    """Write the learning-curve PNG and README.md of ``ds``."""
+    from lhf_hf.envs import get_spec
+
+    spec = get_spec(ds.env_id)
+    optimal = None
+    if spec.optimal_returns is not None:
+        tasks = ds.tasks.data.column(C.TASK_INDEX).to_numpy()
+        optimal = float(spec.optimal_returns()[tasks].mean())
+    plot_learning_curve(
+        learning_curves(ds.histories.data.to_pydict()),
+        ds.root / C.CURVE_PATH,
+        title=f"{ds.env_id}: return per episode over {ds.info['total_histories']} histories",
+        optimal=optimal,
+    )
+    write_text_atomic(render_card(ds, load_path), ds.root / C.CARD_PATH)

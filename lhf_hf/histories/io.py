@@ -1,0 +1,80 @@
+"""Atomic file writes: a crash never leaves a half-written file under its final name."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+
+def _tmp_for(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def write_parquet_atomic(table: pa.Table, path: str | os.PathLike) -> str:
+    """Write ``table`` to ``path`` via a temporary file and ``os.replace``; return its sha256."""
+    path = Path(path)
+    tmp = _tmp_for(path)
+    try:
+        pq.write_table(table, tmp)
+        digest = sha256_file(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return digest
+
+
+def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> None:
+    path = Path(path)
+    tmp = _tmp_for(path)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_json_atomic(obj, path: str | os.PathLike) -> None:
+    write_bytes_atomic(
+        (json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n").encode(), path
+    )
+
+
+def write_text_atomic(text: str, path: str | os.PathLike) -> None:
+    write_bytes_atomic(text.encode(), path)
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def parquet_num_rows(path: str | os.PathLike) -> int | None:
+    """Rows of a parquet file, or None when it is missing or unreadable (corrupt/truncated)."""
+    try:
+        return pq.ParquetFile(path).metadata.num_rows
+    except (OSError, pa.ArrowException, ValueError):
+        return None

@@ -1,0 +1,185 @@
+"""Read a learning-history dataset: ``load_histories(path)`` -> ``HistoryDataset``."""
+
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+
+import datasets
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from datasets.table import InMemoryTable
+
+from lhf_hf import constants as C
+
+from .schema import TaskHistories, task_histories_from_frames
+
+REQUIRED_FRAME_COLUMNS = (
+    C.OBS,
+    C.ACTION,
+    C.REWARD,
+    C.DONE,
+    C.NEXT_OBS,
+    C.INDEX,
+    C.EPISODE_INDEX,
+    C.TASK_INDEX,
+    C.HISTORY_INDEX,
+)
+REQUIRED_HISTORY_COLUMNS = (
+    C.HISTORY_INDEX,
+    C.TASK_INDEX,
+    C.LEARNER,
+    C.RETURNS,
+    C.FROM_INDEX,
+    C.TO_INDEX,
+)
+
+
+class DatasetFormatError(ValueError):
+    """The folder is not a (complete) learning-history dataset in our layout."""
+
+
+def _in_memory(table: pa.Table) -> datasets.Dataset:
+    return datasets.Dataset(InMemoryTable(table))
+
+
+class HistoryDataset:
+    """A learning-history dataset on disk.
+
+    ``frames`` (one row per transition), ``episodes``, ``histories`` and ``tasks`` are
+    ``datasets.Dataset`` objects; ``info`` is ``meta/info.json`` (its ``lhf`` section holds the
+    collection config, seeds, versions and the fingerprint).  For bulk numeric work use
+    ``frame_table`` / ``task_histories``: they read the parquet files directly.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        info_file = self.root / C.INFO_PATH
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"no dataset folder at {self.root}")
+        if not info_file.exists():
+            hint = (
+                " (an unfinished collection: run it again with --resume)"
+                if (self.root / C.CONFIG_PATH).exists()
+                else ""
+            )
+            raise DatasetFormatError(
+                f"{self.root} is not a learning-history dataset: {C.INFO_PATH} is missing{hint}"
+            )
+        try:
+            self.info = json.loads(info_file.read_text())
+        except ValueError as exc:
+            raise DatasetFormatError(f"{info_file} is not valid JSON: {exc}") from None
+        if self.info.get("codebase_version") != C.CODEBASE_VERSION or "lhf" not in self.info:
+            raise DatasetFormatError(
+                f"{self.root}: expected a LeRobot {C.CODEBASE_VERSION} dataset with an 'lhf' section in "
+                f"{C.INFO_PATH}, got codebase_version={self.info.get('codebase_version')!r}"
+            )
+        for rel in (C.EPISODES_PATH, C.HISTORIES_PATH, C.TASKS_PATH):
+            if not (self.root / rel).exists():
+                raise DatasetFormatError(f"{self.root}: {rel} is missing")
+        missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in self.info.get("features", {})]
+        if missing:
+            raise DatasetFormatError(f"{self.root}: frames lack the columns {missing}")
+        cols = pq.read_schema(self.root / C.HISTORIES_PATH).names
+        missing = [c for c in REQUIRED_HISTORY_COLUMNS if c not in cols]
+        if missing:
+            raise DatasetFormatError(
+                f"{self.root}: the histories table lacks the columns {missing}"
+            )
+
+    def __repr__(self) -> str:
+        lhf = self.lhf
+        return (
+            f"HistoryDataset({str(self.root)!r}, env={lhf['env_id']!r}, tasks={self.info['total_tasks']}, "
+            f"histories={self.info['total_histories']}, frames={self.info['total_frames']})"
+        )
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def lhf(self) -> dict:
+        return self.info["lhf"]
+
+    @property
+    def env_id(self) -> str:
+        return self.lhf["env_id"]
+
+    @property
+    def horizon(self) -> int:
+        return int(self.lhf["horizon"])
+
+    @property
+    def fingerprint(self) -> str:
+        return self.lhf["fingerprint"]
+
+    @cached_property
+    def stats(self) -> dict:
+        return json.loads((self.root / C.STATS_PATH).read_text())
+
+    # ------------------------------------------------------------------ tables
+    @cached_property
+    def episodes(self) -> datasets.Dataset:
+        return _in_memory(pq.read_table(self.root / C.EPISODES_PATH))
+
+    @cached_property
+    def histories(self) -> datasets.Dataset:
+        return _in_memory(pq.read_table(self.root / C.HISTORIES_PATH))
+
+    @cached_property
+    def tasks(self) -> datasets.Dataset:
+        return _in_memory(pq.read_table(self.root / C.TASKS_PATH))
+
+    def data_files(self) -> list[Path]:
+        """Data files in frame order (task position order)."""
+        n = int(self.info["total_tasks"])
+        files = [
+            self.root
+            / C.DATA_PATH.format(chunk_index=p // C.CHUNKS_SIZE, file_index=p % C.CHUNKS_SIZE)
+            for p in range(n)
+        ]
+        absent = [f for f in files if not f.exists()]
+        if absent:
+            raise DatasetFormatError(
+                f"{self.root}: {len(absent)} data files are missing (first: {absent[0]})"
+            )
+        return files
+
+    @cached_property
+    def frames(self) -> datasets.Dataset:
+        """All frames as a memory-mapped ``datasets.Dataset`` (Arrow cache built on first use)."""
+        files = [str(f) for f in self.data_files()]
+        return datasets.load_dataset("parquet", data_files=files, split="train")
+
+    def frame_table(self, columns: list[str] | None = None) -> pa.Table:
+        """All frames (or some columns) as one Arrow table read straight from the parquet files."""
+        return pa.concat_tables([pq.read_table(f, columns=columns) for f in self.data_files()])
+
+    def task_positions(self) -> dict[int, int]:
+        """task_index -> position (= data file number)."""
+        tasks = self.lhf["tasks"]
+        return {int(t): p for p, t in enumerate(tasks)}
+
+    def task_frames(self, task_index: int, columns: list[str] | None = None) -> pa.Table:
+        pos = self.task_positions().get(int(task_index))
+        if pos is None:
+            raise KeyError(
+                f"task {task_index} is not in {self.root} (tasks: {self.lhf['tasks'][:10]}...)"
+            )
+        return pq.read_table(self.data_files()[pos], columns=columns)
+
+    def task_histories(self, task_index: int) -> TaskHistories:
+        hist = pq.read_table(self.root / C.HISTORIES_PATH)
+        mask = np.asarray(hist.column(C.TASK_INDEX).to_numpy() == int(task_index))
+        return task_histories_from_frames(
+            self.task_frames(task_index), hist.filter(mask), self.horizon
+        )
+
+
+def load_histories(path: str | Path) -> HistoryDataset:
+    """Open a learning-history dataset folder (LeRobot v3.0 layout + lhf tables)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"no dataset at {path!r}")
+    return HistoryDataset(p)

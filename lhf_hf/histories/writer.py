@@ -1,0 +1,314 @@
+"""Write learning histories in the LeRobot v3.0 layout plus the lhf extension (DESIGN.md 4).
+
+A dataset is written task by task.  Task at position p (tasks sorted by index) goes to data file p
+(``data/chunk-{p // 1000}/file-{p % 1000}.parquet``) with global indices computed from p, so tasks
+may finish in any order, in any process, and a resumed run gives byte-identical tables.
+
+Commit protocol of one task (each file written atomically):
+  1. ``meta/.parts/task-P.episodes.parquet`` and ``task-P.histories.parquet``
+  2. the data file
+  3. ``meta/.parts/task-P.json``: sha256 and row count of the data file, partial feature stats.
+A task counts as done only when 3 exists and the data file still has that checksum; anything else
+(killed mid-write, truncated or edited file) is redone on ``--resume``.  ``finalize`` assembles the
+meta tables, stats, info, card and plot, then removes ``meta/.parts``.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import shutil
+from collections.abc import Iterable
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from lhf_hf import constants as C
+
+from .io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
+from .schema import TaskHistories, episodes_table, features, frames_table, histories_table
+
+NUMERIC_STATS = (C.OBS, C.ACTION, C.REWARD, C.NEXT_OBS, C.OPTIMAL_ACTION)
+
+
+class OutputExistsError(FileExistsError):
+    """``--out`` holds something that this run must not silently reuse or replace."""
+
+
+def data_path(position: int) -> str:
+    return C.DATA_PATH.format(
+        chunk_index=position // C.CHUNKS_SIZE, file_index=position % C.CHUNKS_SIZE
+    )
+
+
+def _part(root: Path, position: int, suffix: str) -> Path:
+    return root / C.PARTS_DIR / f"task-{position:06d}.{suffix}"
+
+
+def library_versions(extra: Iterable[str] = ()) -> dict[str, str]:
+    """Versions of the libraries that shape the data (recorded in every artifact)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    names = [
+        "lhf_hf",
+        "numpy",
+        "pyarrow",
+        "datasets",
+        "huggingface-hub",
+        "gymnasium",
+        "stable-baselines3",
+        "torch",
+        *extra,
+    ]
+    out = {"python": platform.python_version()}
+    for name in names:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            pass
+    return out
+
+
+def _diff(a: dict, b: dict) -> list[str]:
+    keys = sorted(set(a) | set(b))
+    return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in keys if a.get(k) != b.get(k)]
+
+
+def prepare_output(
+    root: str | Path, identity: dict, *, resume: bool = False, overwrite: bool = False
+) -> Path:
+    """Create ``root`` for a run with config ``identity``, or check that it may be resumed/replaced.
+
+    Refuses (``OutputExistsError``) to reuse a non-empty folder unless ``resume`` with the *same*
+    identity, and to delete a folder that is not an lhf dataset even with ``overwrite``.
+    """
+    root = Path(root)
+    config_file = root / C.CONFIG_PATH
+    if root.exists() and any(root.iterdir()):
+        ours = config_file.exists() or (root / C.INFO_PATH).exists()
+        if overwrite:
+            if not ours:
+                raise OutputExistsError(
+                    f"{root} is not empty and is not an lhf dataset; refusing to delete it"
+                )
+            shutil.rmtree(root)
+        else:
+            if not config_file.exists():
+                raise OutputExistsError(
+                    f"{root} is not empty and holds no lhf collection; choose another --out"
+                )
+            old = json.loads(config_file.read_text())
+            diff = _diff(old, identity)
+            if diff:
+                raise OutputExistsError(
+                    f"{root} holds a collection with a different config ({'; '.join(diff)}); "
+                    "use another --out, or --overwrite to replace it"
+                )
+            if not resume:
+                raise OutputExistsError(
+                    f"{root} already holds this collection; pass --resume to continue it "
+                    "(finished tasks are kept) or --overwrite to start again"
+                )
+            return root
+    root.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(identity, config_file)
+    return root
+
+
+def _partial_stats(table: pa.Table) -> dict:
+    out = {}
+    for name in NUMERIC_STATS:
+        if name not in table.column_names:
+            continue
+        col = table.column(name).combine_chunks()
+        if pa.types.is_fixed_size_list(col.type):
+            x = col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), col.type.list_size)
+        else:
+            x = col.to_numpy(zero_copy_only=False).reshape(-1, 1)
+        x = x.astype(np.float64)
+        out[name] = {
+            "min": x.min(0).tolist(),
+            "max": x.max(0).tolist(),
+            "sum": x.sum(0).tolist(),
+            "sumsq": (x * x).sum(0).tolist(),
+            "count": int(x.shape[0]),
+        }
+    return out
+
+
+def write_task(root: str | Path, position: int, th: TaskHistories, horizon: int) -> None:
+    """Commit one task's histories (safe to call from worker processes: files are per task)."""
+    root = Path(root)
+    th.validate(horizon)
+    frames = frames_table(th, position, horizon)
+    write_parquet_atomic(
+        episodes_table(th, position, horizon), _part(root, position, "episodes.parquet")
+    )
+    write_parquet_atomic(
+        histories_table(th, position, horizon), _part(root, position, "histories.parquet")
+    )
+    digest = write_parquet_atomic(frames, root / data_path(position))
+    marker = {
+        "task": th.task,
+        "position": position,
+        "rows": frames.num_rows,
+        "sha256": digest,
+        "features": features(frames),
+        "stats": _partial_stats(frames),
+    }
+    write_json_atomic(marker, _part(root, position, "json"))
+
+
+def task_done(root: str | Path, position: int, expected_rows: int) -> bool:
+    """True when task ``position`` was fully committed and its data file is intact."""
+    root = Path(root)
+    marker = _part(root, position, "json")
+    try:
+        meta = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return False
+    data = root / data_path(position)
+    if meta.get("rows") != expected_rows or parquet_num_rows(data) != expected_rows:
+        return False
+    if parquet_num_rows(_part(root, position, "episodes.parquet")) is None:
+        return False
+    if parquet_num_rows(_part(root, position, "histories.parquet")) is None:
+        return False
+    return sha256_file(data) == meta.get("sha256")
+
+
+def is_complete(root: str | Path) -> bool:
+    return (Path(root) / C.INFO_PATH).exists()
+
+
+def _merge_stats(parts: list[dict]) -> dict:
+    merged: dict[str, dict] = {}
+    for part in parts:
+        for name, s in part.items():
+            m = merged.setdefault(
+                name, {"min": np.inf, "max": -np.inf, "sum": 0.0, "sumsq": 0.0, "count": 0}
+            )
+            m["min"] = np.minimum(m["min"], s["min"])
+            m["max"] = np.maximum(m["max"], s["max"])
+            m["sum"] = m["sum"] + np.asarray(s["sum"])
+            m["sumsq"] = m["sumsq"] + np.asarray(s["sumsq"])
+            m["count"] += s["count"]
+    out = {}
+    for name, m in merged.items():
+        mean = m["sum"] / m["count"]
+        std = np.sqrt(np.maximum(m["sumsq"] / m["count"] - mean * mean, 0.0))
+        out[name] = {
+            "min": np.atleast_1d(m["min"]).tolist(),
+            "max": np.atleast_1d(m["max"]).tolist(),
+            "mean": np.atleast_1d(mean).tolist(),
+            "std": np.atleast_1d(std).tolist(),
+            "count": [m["count"]],
+        }
+    return out
+
+
+def finalize(
+    root: str | Path,
+    *,
+    env_id: str,
+    tasks: list[int],
+    histories: int,
+    steps: int,
+    horizon: int,
+    lhf_meta: dict,
+    split_seed: int,
+    feature_names: dict | None = None,
+):
+    """Assemble the meta tables, stats, info, card and learning-curve plot of a fully written dataset.
+
+    Returns the loaded ``HistoryDataset``.
+    """
+    from lhf_hf.envs import get_spec, make
+
+    from .card import write_card
+    from .reader import load_histories
+
+    root = Path(root)
+    frames_per_task = histories * steps
+    missing = [p for p in range(len(tasks)) if not task_done(root, p, frames_per_task)]
+    if missing:
+        raise RuntimeError(
+            f"{len(missing)} of {len(tasks)} tasks are not written yet (first: task "
+            f"{tasks[missing[0]]}); run the collection again with --resume"
+        )
+    markers = [json.loads(_part(root, p, "json").read_text()) for p in range(len(tasks))]
+    episodes = pa.concat_tables(
+        [pq.read_table(_part(root, p, "episodes.parquet")) for p in range(len(tasks))]
+    )
+    hist = pa.concat_tables(
+        [pq.read_table(_part(root, p, "histories.parquet")) for p in range(len(tasks))]
+    )
+    write_parquet_atomic(episodes, root / C.EPISODES_PATH)
+    write_parquet_atomic(hist, root / C.HISTORIES_PATH)
+
+    spec = get_spec(env_id)
+    train, _ = spec.split(split_seed)
+    train = set(train)
+    rows = []
+    for t in tasks:
+        if spec.family == "gridworld":
+            params = make(env_id, t).unwrapped.task_parameters()
+        else:  # building 100 Meta-World envs only for their goal vectors is not worth it here
+            params = {"ml1_task_index": t, "split_seed": split_seed}
+        readable = ", ".join(
+            f"{k}={tuple(v) if isinstance(v, list) else v}" for k, v in params.items()
+        )
+        rows.append(
+            {
+                C.TASK_INDEX: t,
+                C.TASK: f"{env_id} {readable}",
+                C.TASK_PARAMS: json.dumps(params),
+                C.SPLIT: "train" if t in train else "test",
+            }
+        )
+    write_parquet_atomic(pa.Table.from_pylist(rows), root / C.TASKS_PATH)
+    write_json_atomic(_merge_stats([m["stats"] for m in markers]), root / C.STATS_PATH)
+
+    import hashlib
+
+    fingerprint = hashlib.sha256("".join(m["sha256"] for m in markers).encode()).hexdigest()
+    feats = markers[0]["features"]
+    for name, names in (feature_names or {}).items():
+        if name in feats:
+            feats[name]["names"] = names
+    size_mb = sum((root / data_path(p)).stat().st_size for p in range(len(tasks))) / 2**20
+    total_episodes = episodes.num_rows
+    info = {
+        "codebase_version": C.CODEBASE_VERSION,
+        "robot_type": None,
+        "total_episodes": total_episodes,
+        "total_frames": len(tasks) * frames_per_task,
+        "total_tasks": len(tasks),
+        "total_histories": hist.num_rows,
+        "chunks_size": C.CHUNKS_SIZE,
+        "data_files_size_in_mb": round(size_mb, 3),
+        "fps": C.FPS,
+        "splits": {"train": f"0:{total_episodes}"},
+        "data_path": C.DATA_PATH,
+        "video_path": None,
+        "features": feats,
+        "lhf": {
+            **lhf_meta,
+            "env_id": env_id,
+            "horizon": horizon,
+            "histories_per_task": histories,
+            "steps_per_history": steps,
+            "episodes_per_history": steps // horizon,
+            "split_seed": split_seed,
+            "fingerprint": fingerprint,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        },
+    }
+    write_json_atomic(info, root / C.INFO_PATH)
+    ds = load_histories(root)
+    write_card(ds)
+    shutil.rmtree(root / C.PARTS_DIR, ignore_errors=True)
+    return ds
