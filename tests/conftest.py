@@ -1,4 +1,21 @@
 import os
 
+import pytest
+
 # Headless MuJoCo for every test process (and the subprocesses they start).
 os.environ.setdefault("MUJOCO_GL", "disable")
+
+#: A small real collection shared by the histories/collection tests: 3 Darkroom tasks, 10 histories
+#: of 200 transitions, noisy protocol (7 PPO + 3 random histories per task).
+SMALL = dict(
+    env_id="darkroom", tasks="3,40,62", histories=10, steps=200, protocol="noisy", seed=0, workers=1
+)
+
+
+@pytest.fixture(scope="session")
+def small_darkroom(tmp_path_factory):
+    from lhf_hf.collection import collect
+    from lhf_hf.configs import CollectConfig
+
+    root = tmp_path_factory.mktemp("small") / "darkroom"
+    return collect(CollectConfig(**SMALL), root, progress=False)

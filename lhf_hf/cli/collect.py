@@ -70,4 +70,10 @@ def run(args: argparse.Namespace) -> int:
     )
     if ds is not None:
         print(f"wrote {ds}\ncard: {ds.root / 'README.md'}")
+    else:  # a non-zero rank under accelerate launch: rank 0 assembles the dataset
+        import os
+
+        print(
+            f"[rank {os.environ.get('RANK', '?')}] committed this rank's tasks; rank 0 wrote the dataset"
+        )
     return 0

@@ -1,0 +1,58 @@
+"""``lhf collect`` / ``lhf derive`` from the command line: outputs and clear errors."""
+
+import pytest
+
+from lhf_hf.cli.main import main
+
+
+def test_collect_and_derive(tmp_path, capsys):
+    out = tmp_path / "d"
+    args = [
+        "collect",
+        "darkroom",
+        "--out",
+        str(out),
+        "--tasks",
+        "40",
+        "--histories",
+        "2",
+        "--steps",
+        "40",
+        "--workers",
+        "1",
+        "--no-progress",
+    ]
+    assert main(args) == 0
+    assert "tasks=1, histories=2, frames=80" in capsys.readouterr().out
+    assert main(args) == 1
+    assert "--resume" in capsys.readouterr().err
+    assert main(["derive", "half", str(out), "--out", str(tmp_path / "h")]) == 0
+    assert "frames=40" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--algo", "sac"], "needs continuous actions"),
+        (["--steps", "30"], "multiple of the horizon"),
+        (["--tasks", "99"], "out of range"),
+        (["--histories", "0"], "histories must be >= 1"),
+    ],
+)
+def test_bad_input_fails_before_work(tmp_path, capsys, extra, message):
+    out = tmp_path / "never"
+    assert main(["collect", "darkroom", "--out", str(out), *extra]) == 1
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_unknown_env_and_protocol(tmp_path, capsys):
+    assert main(["collect", "darkroom-xl", "--out", str(tmp_path / "x")]) == 1
+    assert "valid ids" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["collect", "darkroom", "--out", str(tmp_path / "x"), "--protocol", "greedy"])
+
+
+def test_derive_missing_source(tmp_path, capsys):
+    assert main(["derive", "half", str(tmp_path / "none"), "--out", str(tmp_path / "h")]) == 1
+    assert "no dataset" in capsys.readouterr().err

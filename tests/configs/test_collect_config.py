@@ -1,0 +1,50 @@
+"""CollectConfig validation: bad input fails before any work, with a message naming the field."""
+
+import pytest
+
+from lhf_hf.configs import CollectConfig
+from lhf_hf.configs.collect import ppo_preset
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(protocol="greedy"), "protocol must be one of"),
+        (dict(algo="dqn"), "algo must be one of"),
+        (dict(algo="sac"), "needs continuous actions"),
+        (dict(steps=30), "multiple of the horizon of darkroom \\(20\\)"),
+        (dict(steps=0), "multiple of the horizon"),
+        (dict(histories=0), "histories must be >= 1"),
+        (dict(tasks="0,81"), "out of range"),
+        (dict(tasks="first"), "comma-separated"),
+        (dict(tasks=[]), "empty"),
+        (dict(noisy_fraction=1.0), "noisy_fraction"),
+        (dict(protocol="noisy", histories=1, noisy_fraction=0.9), "no learner histories"),
+        (dict(collector="batched"), "collector must be one of"),
+        (dict(workers=0), "workers"),
+    ],
+)
+def test_rejects(kwargs, match):
+    with pytest.raises((ValueError, IndexError), match=match):
+        CollectConfig("darkroom", **kwargs)
+
+
+def test_unknown_env():
+    with pytest.raises(KeyError, match="valid ids"):
+        CollectConfig("darkroom-xl")
+
+
+def test_tasks_and_presets():
+    assert CollectConfig("darkroom", tasks="test").tasks == sorted(
+        __import__("lhf_hf.envs", fromlist=["task_split"]).task_split("darkroom", 0)[1]
+    )
+    assert len(CollectConfig("darkroom").tasks) == 81
+    assert CollectConfig("darkroom", tasks="7, 3,3").tasks == [3, 7]
+    assert (
+        ppo_preset("dark-key-to-door").n_epochs == 10
+        and ppo_preset("metaworld-push").n_steps == 100
+    )
+    c = CollectConfig("darkroom", histories=10, protocol="noisy")
+    assert c.num_random_histories == 3 and c.episodes_per_history == 50
+    assert CollectConfig.from_dict(c.to_dict()) == c
+    assert "workers" not in c.identity()

@@ -1,0 +1,103 @@
+"""Reading datasets: plain ``datasets.load_dataset``, ``load_histories``, cards, errors."""
+
+import json
+import shutil
+
+import datasets
+import numpy as np
+import pytest
+import yaml
+
+from lhf_hf import constants as C
+from lhf_hf.histories import DatasetFormatError, load_histories
+
+
+def test_load_dataset_default_and_tables(small_darkroom):
+    root = str(small_darkroom.root)
+    frames = datasets.load_dataset(root, split="train")
+    assert frames.num_rows == 6000 and frames[0][C.OBS] == [4, 4]
+    assert frames.features[C.OBS].feature.dtype == "int64"
+    episodes = datasets.load_dataset(root, "episodes", split="train")
+    histories = datasets.load_dataset(root, "histories", split="train")
+    assert episodes.num_rows == 300 and histories.num_rows == 30
+    assert histories[0][C.RETURNS] == small_darkroom.histories[0][C.RETURNS]
+
+
+def test_load_histories_object(small_darkroom):
+    ds = load_histories(small_darkroom.root)
+    assert ds.env_id == "darkroom" and ds.horizon == 20
+    assert ds.tasks.to_pandas()[C.TASK_INDEX].tolist() == [3, 40, 62]
+    assert ds.tasks.to_pandas()[C.SPLIT].tolist() == ["train", "train", "test"]  # split seed 0
+    assert json.loads(ds.tasks[1][C.TASK_PARAMS]) == {"goal": [4, 4]}
+    assert ds.frames.num_rows == 6000
+    th = ds.task_histories(40)
+    assert th.rewards.shape == (10, 200) and th.learner.count("random") == 3
+    with pytest.raises(KeyError, match="task 41"):
+        ds.task_histories(41)
+
+
+def test_card_and_plot(small_darkroom):
+    text = (small_darkroom.root / "README.md").read_text()
+    front = yaml.safe_load(text.split("---")[1])
+    assert {"LeRobot", "lhf", "in-context-rl"} <= set(front["tags"])
+    names = {c["config_name"]: c["data_files"] for c in front["configs"]}
+    assert names == {
+        "default": "data/*/*.parquet",
+        "episodes": "meta/episodes/*/*.parquet",
+        "histories": "meta/histories/*/*.parquet",
+    }
+    assert "| `observation.state` | int64 | (2,) |" in text and "ppo: 7, random: 3" in text
+    assert "n_steps" in text and "stable-baselines3" in text
+    png = (small_darkroom.root / C.CURVE_PATH).read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_not_a_dataset(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        load_histories(tmp_path / "nope")
+    with pytest.raises(DatasetFormatError, match="info.json is missing"):
+        load_histories(tmp_path)
+
+
+def test_malformed_datasets(small_darkroom, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(small_darkroom.root, bad)
+    info = json.loads((bad / C.INFO_PATH).read_text())
+    info["codebase_version"] = "v2.1"
+    (bad / C.INFO_PATH).write_text(json.dumps(info))
+    with pytest.raises(DatasetFormatError, match="v3.0"):
+        load_histories(bad)
+    info["codebase_version"] = "v3.0"
+    del info["features"][C.REWARD]
+    (bad / C.INFO_PATH).write_text(json.dumps(info))
+    with pytest.raises(DatasetFormatError, match="next.reward"):
+        load_histories(bad)
+    shutil.copy(small_darkroom.root / C.INFO_PATH, bad / C.INFO_PATH)
+    (bad / C.HISTORIES_PATH).unlink()
+    with pytest.raises(DatasetFormatError, match="histories"):
+        load_histories(bad)
+    shutil.copytree(small_darkroom.root, tmp_path / "bad2")
+    (tmp_path / "bad2" / "data/chunk-000/file-001.parquet").unlink()
+    with pytest.raises(DatasetFormatError, match="data files are missing"):
+        load_histories(tmp_path / "bad2").frame_table()
+
+
+def test_derive_half(small_darkroom, tmp_path):
+    from lhf_hf.histories.derive import derive_half
+
+    half = derive_half(small_darkroom.root, tmp_path / "half", progress=False)
+    assert half.lhf["steps_per_history"] == 100 and half.info["total_frames"] == 3000
+    d = half.lhf["derived_from"]
+    assert d["op"] == "half" and d["source_fingerprint"] == small_darkroom.fingerprint
+    assert d["source_collect"]["protocol"] == "noisy"
+    src = small_darkroom.task_histories(40)
+    new = half.task_histories(40)
+    np.testing.assert_array_equal(new.obs, src.obs[:, :100])
+    np.testing.assert_array_equal(new.rewards, src.rewards[:, :100])
+    assert new.learner == src.learner
+    returns = half.histories.to_pandas()[C.RETURNS]
+    assert all(len(r) == 5 for r in returns)
+    np.testing.assert_allclose(returns[0], small_darkroom.histories[0][C.RETURNS][:5])
+    assert "Derived dataset" in (half.root / "README.md").read_text()
+    with pytest.raises(ValueError, match="less than one episode"):
+        derive_half(small_darkroom.root, tmp_path / "tiny", fraction=0.01, progress=False)
