@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # The main job on the embedded default: a tour of the environments with an oracle rollout per env.
+# then a small Darkroom collection with its card and plot.
 # (Later issues grow this into the quick end-to-end Darkroom reproduction.)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -9,3 +10,8 @@ lhf envs
 echo
 echo "[lhf] oracle on the test tasks of split 0 (gridworlds: exact oracle; Meta-World: scripted, goal revealed)"
 lhf envs --oracle --split-seed 0 --metaworld-tasks 2
+echo
+echo "[lhf] a small Darkroom collection (4 tasks x 20 histories x 600 transitions, noisy protocol)"
+lhf collect darkroom --out data/demo-darkroom --tasks 10,20,30,50 --histories 20 --steps 600 \
+  --protocol noisy --workers 2 --overwrite
+echo "[lhf] done: open data/demo-darkroom/README.md and data/demo-darkroom/meta/learning_curve.png"
