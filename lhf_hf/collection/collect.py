@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+import sys
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from datetime import timedelta
 from multiprocessing import get_context
 from pathlib import Path
@@ -116,11 +117,15 @@ def collect(
                     for p in todo
                 }
                 while pending:
-                    finished, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for fut in finished:
                         done(fut.result()[1])  # re-raises a worker's error; committed tasks stay
     finally:
         bar.close()
+    if progress and todo:
+        secs = time.perf_counter() - start
+        print(f"collected {len(todo)} tasks ({frames:,} transitions) in {secs:.1f} s: "
+              f"{frames / secs:,.0f} transitions/s with {config.workers} worker(s)", file=sys.stderr)
     ranks.barrier()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]
