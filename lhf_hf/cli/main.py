@@ -7,10 +7,10 @@ import sys
 
 from lhf_hf import __version__
 
-from . import collect, derive, envs
+from . import collect, derive, envs, filter
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
-COMMANDS = [envs, collect, derive]
+COMMANDS = [envs, collect, derive, filter]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,8 +9,8 @@ Tasks are spread over ``config.workers`` processes and, under ``accelerate launc
 from __future__ import annotations
 
 import os
-import time
 import sys
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from datetime import timedelta
 from multiprocessing import get_context
@@ -124,8 +124,11 @@ def collect(
         bar.close()
     if progress and todo:
         secs = time.perf_counter() - start
-        print(f"collected {len(todo)} tasks ({frames:,} transitions) in {secs:.1f} s: "
-              f"{frames / secs:,.0f} transitions/s with {config.workers} worker(s)", file=sys.stderr)
+        print(
+            f"collected {len(todo)} tasks ({frames:,} transitions) in {secs:.1f} s: "
+            f"{frames / secs:,.0f} transitions/s with {config.workers} worker(s)",
+            file=sys.stderr,
+        )
     ranks.barrier()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]

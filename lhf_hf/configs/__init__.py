@@ -1,5 +1,6 @@
 """Documented, validated config dataclasses: the single source of truth of every command."""
 
 from .collect import CollectConfig, PPOSettings, SACSettings
+from .filter import FilterConfig
 
-__all__ = ["CollectConfig", "PPOSettings", "SACSettings"]
+__all__ = ["CollectConfig", "FilterConfig", "PPOSettings", "SACSettings"]

@@ -1,75 +1,56 @@
-"""Datasets derived from a history dataset.  ``half``: the first part of every history (paper,
-"Can LHF enhance ICRL given partial learning histories?", first 50%)."""
+"""Datasets derived from a history dataset, task by task, through the same writer.
+
+``half``: the first part of every history (paper, "Can LHF enhance ICRL given partial learning
+histories?", first 50%).  LHF materialisation (``lhf_hf.filtering.materialize``) uses the same path.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from .reader import load_histories
+from .reader import HistoryDataset, load_histories
+from .schema import TaskHistories
 from .writer import finalize, is_complete, library_versions, prepare_output, task_done, write_task
 
 
-def derive_half(
-    src: str | Path,
+def write_derived(
+    source: HistoryDataset,
     out: str | Path,
+    transform: Callable[[int, TaskHistories], TaskHistories],
+    derived: dict,
     *,
-    fraction: float = 0.5,
+    steps: int,
+    identity: dict,
     overwrite: bool = False,
     resume: bool = False,
     progress: bool = True,
-):
-    """Write the first ``fraction`` of every history of ``src`` (whole episodes) to ``out``.
+) -> HistoryDataset:
+    """Write ``transform(task, histories)`` for every task of ``source`` as a new dataset at ``out``.
 
-    The new dataset keeps tasks, histories and learners; its ``info.json`` records the source path,
-    fingerprint and collection config under ``lhf.derived_from``.
+    ``derived`` (op, description, ...) is stored as ``info.json["lhf"]["derived_from"]`` together
+    with the source's path, fingerprint and collection config.
     """
-    if not 0.0 < fraction < 1.0:
-        raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
-    source = load_histories(src)
     horizon = source.horizon
-    steps = source.lhf["steps_per_history"]
-    new_steps = int(steps * fraction) // horizon * horizon  # whole episodes only
-    if new_steps < horizon:
-        raise ValueError(
-            f"{fraction:.0%} of {steps} steps is less than one episode ({horizon} steps)"
-        )
     tasks = [int(t) for t in source.lhf["tasks"]]
     H = source.lhf["histories_per_task"]
-    identity = {"op": "half", "fraction": fraction, "source_fingerprint": source.fingerprint}
+    identity = {**identity, "source_fingerprint": source.fingerprint}
     out = Path(out)
     if resume and is_complete(out):
         prepare_output(out, identity, resume=True)
         return load_histories(out)
     prepare_output(out, identity, resume=resume, overwrite=overwrite)
-    todo = [p for p in range(len(tasks)) if not task_done(out, p, H * new_steps)]
-    for p in tqdm(todo, desc="derive half", unit="task", disable=not progress):
-        write_task(out, p, source.task_histories(tasks[p]).slice_steps(new_steps), horizon)
-    meta = {
-        k: v
-        for k, v in source.lhf.items()
-        if k
-        not in (
-            "collect",
-            "fingerprint",
-            "created",
-            "derived_from",
-            "histories_per_task",
-            "steps_per_history",
-            "episodes_per_history",
-            "horizon",
-            "env_id",
-            "split_seed",
-        )
-    }
+    todo = [p for p in range(len(tasks)) if not task_done(out, p, H * steps)]
+    for p in tqdm(todo, desc=f"derive {derived['op']}", unit="task", disable=not progress):
+        write_task(out, p, transform(tasks[p], source.task_histories(tasks[p])), horizon)
+    keep = ("tasks", "seed", "terminal_convention")
+    meta = {k: v for k, v in source.lhf.items() if k in keep}
     meta["versions"] = library_versions()
     meta["derived_from"] = {
-        "op": "half",
-        "fraction": fraction,
-        "description": f"the first {new_steps} of the {steps} transitions of every history "
-        f"({new_steps // horizon} of {steps // horizon} episodes).",
-        "source": str(Path(src).resolve()),
+        **derived,
+        "source": str(Path(source.root).resolve()),
         "source_fingerprint": source.fingerprint,
         "source_collect": source.lhf.get("collect")
         or (source.lhf.get("derived_from") or {}).get("source_collect"),
@@ -81,9 +62,48 @@ def derive_half(
         env_id=source.env_id,
         tasks=tasks,
         histories=H,
-        steps=new_steps,
+        steps=steps,
         horizon=horizon,
         lhf_meta=meta,
         split_seed=source.lhf["split_seed"],
         feature_names=names,
+    )
+
+
+def derive_half(
+    src: str | Path,
+    out: str | Path,
+    *,
+    fraction: float = 0.5,
+    overwrite: bool = False,
+    resume: bool = False,
+    progress: bool = True,
+) -> HistoryDataset:
+    """Write the first ``fraction`` of every history of ``src`` (whole episodes) to ``out``."""
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
+    source = load_histories(src)
+    horizon = source.horizon
+    steps = source.lhf["steps_per_history"]
+    new_steps = int(steps * fraction) // horizon * horizon  # whole episodes only
+    if new_steps < horizon:
+        raise ValueError(
+            f"{fraction:.0%} of {steps} steps is less than one episode ({horizon} steps)"
+        )
+    derived = {
+        "op": "half",
+        "fraction": fraction,
+        "description": f"the first {new_steps} of the {steps} transitions of every history "
+        f"({new_steps // horizon} of {steps // horizon} episodes).",
+    }
+    return write_derived(
+        source,
+        out,
+        lambda task, th: th.slice_steps(new_steps),
+        derived,
+        steps=new_steps,
+        identity={"op": "half", "fraction": fraction},
+        overwrite=overwrite,
+        resume=resume,
+        progress=progress,
     )

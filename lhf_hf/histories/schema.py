@@ -96,6 +96,24 @@ class TaskHistories:
             seeds=self.seeds,
         )
 
+    def take(self, histories: np.ndarray) -> TaskHistories:
+        """The histories at positions ``histories`` (repeats allowed), in that order."""
+        idx = np.asarray(histories, dtype=np.int64)
+        pick = lambda a: None if a is None else a[idx]  # noqa: E731
+        return TaskHistories(
+            task=self.task,
+            obs=self.obs[idx],
+            actions=self.actions[idx],
+            rewards=self.rewards[idx],
+            next_obs=self.next_obs[idx],
+            dones=self.dones[idx],
+            optimal_actions=pick(self.optimal_actions),
+            success=pick(self.success),
+            learner=[self.learner[i] for i in idx],
+            learner_index=self.learner_index[idx],
+            seeds=self.seeds[idx],
+        )
+
 
 def _column(arr: np.ndarray) -> pa.Array:
     """(N,) -> a plain array; (N, d) -> a fixed-size list array of d values per row."""

@@ -311,4 +311,6 @@ def finalize(
     ds = load_histories(root)
     write_card(ds)
     shutil.rmtree(root / C.PARTS_DIR, ignore_errors=True)
+    for stray in root.rglob(".*.tmp"):  # temporary files of writers that were killed mid-write
+        stray.unlink(missing_ok=True)
     return ds

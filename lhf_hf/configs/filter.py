@@ -1,0 +1,58 @@
+"""Configuration of learning history filtering (paper section 4; DESIGN.md section 5)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+STRATEGIES = ("linear", "softmax", "none", "top-fraction")
+SCAN_ORDERS = ("descending", "dataset")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """How to filter (resample) the histories of a dataset.  Stored with every selection.
+
+    strategy: ``linear`` and ``softmax`` are the paper's LHF sampling; ``none`` keeps every history
+        once (the baseline); ``top-fraction`` keeps the best ``fraction`` of each task by U,
+        repeated to the original count (a simpler filter to compare against).
+    lam: lambda, the weight of Stability in U = Improvement + lambda * Stability (paper: 1).
+    alpha: softmax temperature (paper's sensitivity study: 1/16 .. 1).
+    fraction: share of each task kept by ``top-fraction``.
+    seed: seed of the acceptance draws; task t uses ``SeedSequence([seed, t])``.
+    r_max: maximal episode return used by the scores; None = the env's optimal return of each task
+        (gridworlds).  Required for Meta-World.  Linear sampling is invariant to it (min-max
+        normalisation cancels it); softmax is not.
+    scan_order: order of the passes of Algorithm 1: ``descending`` U (the reference code) or
+        ``dataset`` order.
+    """
+
+    strategy: str = "linear"
+    lam: float = 1.0
+    alpha: float = 0.125
+    fraction: float = 0.5
+    seed: int = 0
+    r_max: float | None = None
+    scan_order: str = "descending"
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(
+                f"FilterConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}"
+            )
+        if not math.isfinite(self.lam) or self.lam < 0:
+            raise ValueError(f"FilterConfig.lam must be a finite value >= 0, got {self.lam!r}")
+        if not math.isfinite(self.alpha) or self.alpha <= 0:
+            raise ValueError(f"FilterConfig.alpha must be > 0, got {self.alpha!r}")
+        if not 0 < self.fraction <= 1:
+            raise ValueError(f"FilterConfig.fraction must be in (0, 1], got {self.fraction!r}")
+        if self.r_max is not None and (not math.isfinite(self.r_max) or self.r_max <= 0):
+            raise ValueError(f"FilterConfig.r_max must be a positive return, got {self.r_max!r}")
+        if self.scan_order not in SCAN_ORDERS:
+            raise ValueError(
+                f"FilterConfig.scan_order must be one of {SCAN_ORDERS}, got {self.scan_order!r}"
+            )
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

@@ -1,0 +1,60 @@
+"""``run_filter``: the importable body of ``lhf filter`` (selection, plot, optional materialisation)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from lhf_hf import constants as C
+from lhf_hf.configs.filter import FilterConfig
+from lhf_hf.histories.reader import load_histories
+
+from .materialize import materialize
+from .plots import plot_selection
+from .select import CONFIG_FILE, PLOT_FILE, filter_histories
+
+
+def run_filter(
+    dataset: str | Path,
+    out: str | Path,
+    config: FilterConfig,
+    *,
+    materialize_to: str | Path | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Filter ``dataset`` with ``config``; write the selection (and a materialised dataset) to disk.
+
+    Returns the summary (counts, learner shares, mean returns of selected vs rejected, timings).
+    """
+    out = Path(out)
+    if (out / CONFIG_FILE).exists() and not overwrite:
+        raise FileExistsError(f"{out} already holds a selection; pass --overwrite to replace it")
+    ds = load_histories(dataset)
+    start = time.perf_counter()
+    selection = filter_histories(ds, config)
+    seconds = time.perf_counter() - start
+    hist = ds.histories.data.table
+    returns = dict(
+        zip(
+            hist.column(C.HISTORY_INDEX).to_pylist(),
+            hist.column(C.RETURNS).to_pylist(),
+            strict=True,
+        )
+    )
+    summary = {**selection.summary(returns), "selection_seconds": round(seconds, 4)}
+    selection.save(out, summary)
+    label = (
+        config.strategy
+        if config.strategy in ("none", "top-fraction")
+        else f"LHF {config.strategy}, lambda={config.lam}"
+        + (f", alpha={config.alpha}" if config.strategy == "softmax" else "")
+    )
+    plot_selection(selection.table, returns, out / PLOT_FILE, title=f"{ds.env_id}: {label}")
+    if materialize_to is not None:
+        start = time.perf_counter()
+        new = materialize(ds, selection, materialize_to, overwrite=overwrite, progress=progress)
+        summary["materialize_seconds"] = round(time.perf_counter() - start, 3)
+        (new.root / "meta" / PLOT_FILE).write_bytes((out / PLOT_FILE).read_bytes())
+        selection.save(out, summary)
+    return summary
