@@ -25,7 +25,9 @@ from lhf_hf.filtering import filter_histories, materialize
 from lhf_hf.histories import load_histories
 
 
-def reference_python(task_of: list[int], returns: list[list[float]], r_max: dict[int, float], lam: float, seed: int):
+def reference_python(
+    task_of: list[int], returns: list[list[float]], r_max: dict[int, float], lam: float, seed: int
+):
     """The paper's pseudo-code, literally: per-history Python loops, linear sampling."""
     scores = []
     for t, r in zip(task_of, returns, strict=True):
@@ -75,16 +77,25 @@ def main() -> None:
     returns = hist.column(C.RETURNS).to_pylist()
     r_max = dict(enumerate(get_spec(ds.env_id).optimal_returns().tolist()))
 
-    results = {"dataset": str(ds.root), "histories": hist.num_rows, "frames": ds.info["total_frames"]}
+    results = {
+        "dataset": str(ds.root),
+        "histories": hist.num_rows,
+        "frames": ds.info["total_frames"],
+    }
     ours = filter_histories(ds, FilterConfig())
     ref_scores, ref_counts = reference_python(task_of, returns, r_max, 1.0, 0)
     np.testing.assert_allclose(ours.table.column("score").to_numpy(), ref_scores, rtol=1e-12)
     results["scores_match_reference"] = True
-    results["reference_python_s"] = best_of(lambda: reference_python(task_of, returns, r_max, 1.0, 0), args.repeats)
+    results["reference_python_s"] = best_of(
+        lambda: reference_python(task_of, returns, r_max, 1.0, 0), args.repeats
+    )
     for strategy in ("linear", "softmax"):
-        results[f"selection_{strategy}_s"] = best_of(lambda s=strategy: filter_histories(ds, FilterConfig(strategy=s)),
-                                                     args.repeats)
-    results["ratio_reference_over_linear"] = results["reference_python_s"] / results["selection_linear_s"]
+        results[f"selection_{strategy}_s"] = best_of(
+            lambda s=strategy: filter_histories(ds, FilterConfig(strategy=s)), args.repeats
+        )
+    results["ratio_reference_over_linear"] = (
+        results["reference_python_s"] / results["selection_linear_s"]
+    )
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         materialize(ds, ours, f"{tmp}/m", progress=False)

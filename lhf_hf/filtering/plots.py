@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from lhf_hf import constants as C
+from lhf_hf.histories.io import save_figure_atomic
 
 
 def plot_selection(
@@ -87,9 +88,4 @@ def plot_selection(
     ax2.grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure_atomic(fig, path)

@@ -78,3 +78,17 @@ def parquet_num_rows(path: str | os.PathLike) -> int | None:
         return pq.ParquetFile(path).metadata.num_rows
     except (OSError, pa.ArrowException, ValueError):
         return None
+
+
+def save_figure_atomic(fig, path: str | os.PathLike) -> None:
+    """Save a matplotlib figure via a temporary file, then close it."""
+    path = Path(path)
+    tmp = _tmp_for(path).with_suffix(".png")
+    try:
+        fig.savefig(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)

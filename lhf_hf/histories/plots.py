@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .io import save_figure_atomic
+
 
 def learning_curves(histories: dict) -> dict[str, np.ndarray]:
     """Episode returns per learner type, {learner: (n_histories, n_episodes)}, from the columns
@@ -47,8 +49,4 @@ def plot_learning_curve(
     ax.legend(fontsize=8, loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(path).with_suffix(".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure_atomic(fig, path)

@@ -27,7 +27,9 @@ def test_algorithm1_extremes():
     rng = np.random.default_rng(0)
     order = np.arange(4)
     np.testing.assert_array_equal(algorithm1(np.array([1.0, 0, 0, 0]), order, rng), [4, 0, 0, 0])
-    np.testing.assert_array_equal(algorithm1(np.ones(4), order, rng), [1, 1, 1, 1])  # one pass keeps all
+    np.testing.assert_array_equal(
+        algorithm1(np.ones(4), order, rng), [1, 1, 1, 1]
+    )  # one pass keeps all
     with pytest.raises(ValueError, match="never finish"):
         algorithm1(np.zeros(3), np.arange(3), rng)
 
@@ -43,20 +45,33 @@ def test_algorithm1_frequencies_follow_probabilities():
 
 
 def test_top_fraction_counts():
-    np.testing.assert_array_equal(top_fraction_counts(np.array([0.1, 0.9, 0.5, 0.3]), 0.5), [0, 2, 2, 0])
+    np.testing.assert_array_equal(
+        top_fraction_counts(np.array([0.1, 0.9, 0.5, 0.3]), 0.5), [0, 2, 2, 0]
+    )
     np.testing.assert_array_equal(top_fraction_counts(np.array([0.1, 0.9, 0.5]), 0.5), [0, 2, 1])
 
 
 returns_strategy = st.integers(1, 6).flatmap(
-    lambda n_tasks: st.lists(st.tuples(st.integers(1, 12), st.integers(1, 8), st.integers(0, 10_000)),
-                             min_size=n_tasks, max_size=n_tasks))
+    lambda n_tasks: st.lists(
+        st.tuples(st.integers(1, 12), st.integers(1, 8), st.integers(0, 10_000)),
+        min_size=n_tasks,
+        max_size=n_tasks,
+    )
+)
 
 
 @settings(max_examples=40, deadline=None)
-@given(spec=returns_strategy, strategy=st.sampled_from(["linear", "softmax"]), lam=st.sampled_from([0.0, 0.5, 1.0, 2.0]),
-       seed=st.integers(0, 3))
+@given(
+    spec=returns_strategy,
+    strategy=st.sampled_from(["linear", "softmax"]),
+    lam=st.sampled_from([0.0, 0.5, 1.0, 2.0]),
+    seed=st.integers(0, 3),
+)
 def test_resample_properties(spec, strategy, lam, seed):
-    returns = {t: np.random.default_rng(s).integers(0, 20, (n, e)).astype(float) for t, (n, e, s) in enumerate(spec)}
+    returns = {
+        t: np.random.default_rng(s).integers(0, 20, (n, e)).astype(float)
+        for t, (n, e, s) in enumerate(spec)
+    }
     ds = table(returns)
     sel = lhf_resample(ds, lam=lam, strategy=strategy, seed=seed, r_max=20.0).to_pandas()
     again = lhf_resample(ds, lam=lam, strategy=strategy, seed=seed, r_max=20.0).to_pandas()
@@ -95,7 +110,9 @@ def test_ablations():
 
 
 def test_single_history_task_unchanged():
-    sel = lhf_resample(table({0: np.array([[1.0, 2.0]]), 1: np.array([[0, 1], [1, 1], [3, 0.0]])}), r_max=3.0)
+    sel = lhf_resample(
+        table({0: np.array([[1.0, 2.0]]), 1: np.array([[0, 1], [1, 1], [3, 0.0]])}), r_max=3.0
+    )
     assert sel.to_pandas().query("task_index == 0")["count"].tolist() == [1]
 
 
@@ -111,18 +128,29 @@ def test_single_history_task_unchanged():
     ],
 )
 def test_errors_name_the_problem(returns, kwargs, match):
-    ds = datasets.Dataset.from_dict({"task_index": [0] * len(returns), "history_index": list(range(len(returns))),
-                                     "returns": returns},
-                                    features=datasets.Features({"task_index": datasets.Value("int64"),
-                                                                "history_index": datasets.Value("int64"),
-                                                                "returns": datasets.List(datasets.Value("float64"))}))
+    ds = datasets.Dataset.from_dict(
+        {
+            "task_index": [0] * len(returns),
+            "history_index": list(range(len(returns))),
+            "returns": returns,
+        },
+        features=datasets.Features(
+            {
+                "task_index": datasets.Value("int64"),
+                "history_index": datasets.Value("int64"),
+                "returns": datasets.List(datasets.Value("float64")),
+            }
+        ),
+    )
     with pytest.raises(ValueError, match=match):
         lhf_resample(ds, **{"r_max": 2.0, **kwargs})
 
 
 def test_missing_columns():
     with pytest.raises(ValueError, match="lacks the columns"):
-        lhf_resample(datasets.Dataset.from_dict({"task_index": [0], "history_index": [0]}), r_max=1.0)
+        lhf_resample(
+            datasets.Dataset.from_dict({"task_index": [0], "history_index": [0]}), r_max=1.0
+        )
 
 
 def test_meta_world_needs_r_max():

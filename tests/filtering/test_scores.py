@@ -38,7 +38,9 @@ def test_vectorised_equals_scalar():
         assert s["score"][i] == pytest.approx(unified_score(r[i], rmax[i], 0.7))
 
 
-@pytest.mark.parametrize("bad, match", [([], "empty"), ([1, np.nan], "NaN"), ([1, np.inf], "NaN or infinite")])
+@pytest.mark.parametrize(
+    "bad, match", [([], "empty"), ([1, np.nan], "NaN"), ([1, np.inf], "NaN or infinite")]
+)
 def test_bad_returns(bad, match):
     with pytest.raises(ValueError, match=match):
         improvement(bad, 1)
@@ -55,8 +57,12 @@ def test_bad_r_max_and_lambda():
 def test_sampling_hand_computed():
     np.testing.assert_allclose(sampling_probabilities([1.0, 2.0, 3.0]), [0, 0.5, 1])
     # softmax with alpha = 1 of [0, ln 2, ln 4] is [1, 2, 4] / 7 -> min-max [0, 1/3, 1]
-    np.testing.assert_allclose(sampling_probabilities(np.log([1.0, 2.0, 4.0]), "softmax", alpha=1.0), [0, 1 / 3, 1])
-    np.testing.assert_array_equal(sampling_probabilities([1.3, 1.3, 1.3]), [1, 1, 1])  # all alike: keep all
+    np.testing.assert_allclose(
+        sampling_probabilities(np.log([1.0, 2.0, 4.0]), "softmax", alpha=1.0), [0, 1 / 3, 1]
+    )
+    np.testing.assert_array_equal(
+        sampling_probabilities([1.3, 1.3, 1.3]), [1, 1, 1]
+    )  # all alike: keep all
     np.testing.assert_array_equal(sampling_probabilities([0.7]), [1])  # one history
     # huge U / tiny alpha does not overflow
     p = sampling_probabilities([1000.0, 1001.0], "softmax", alpha=1e-3)
@@ -73,8 +79,11 @@ def test_sampling_errors():
 
 
 @settings(max_examples=60, deadline=None)
-@given(u=arrays(np.float64, st.integers(2, 30), elements=st.floats(0, 3)), strategy=st.sampled_from(["linear", "softmax"]),
-       alpha=st.sampled_from([1 / 16, 0.125, 0.5, 1.0]))
+@given(
+    u=arrays(np.float64, st.integers(2, 30), elements=st.floats(0, 3)),
+    strategy=st.sampled_from(["linear", "softmax"]),
+    alpha=st.sampled_from([1 / 16, 0.125, 0.5, 1.0]),
+)
 def test_probability_properties(u, strategy, alpha):
     p = sampling_probabilities(u, strategy, alpha)
     assert np.all((p >= 0) & (p <= 1))

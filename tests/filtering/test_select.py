@@ -11,7 +11,13 @@ import pytest
 from lhf_hf import constants as C
 from lhf_hf.cli.main import main
 from lhf_hf.configs import FilterConfig
-from lhf_hf.filtering import apply_selection, filter_frames, filter_histories, load_selection, materialize
+from lhf_hf.filtering import (
+    apply_selection,
+    filter_frames,
+    filter_histories,
+    load_selection,
+    materialize,
+)
 from lhf_hf.histories import load_histories
 
 
@@ -50,7 +56,9 @@ def test_apply_selection_repeats_contiguous_histories(selection, small_darkroom)
     blocks = h.reshape(-1, 200)
     assert np.all(blocks == blocks[:, :1])  # every block of 200 frames is one whole history
     ids, reps = np.unique(blocks[:, 0], return_counts=True)
-    assert dict(zip(ids.tolist(), reps.tolist(), strict=True)) == {k: v for k, v in counts.items() if v}
+    assert dict(zip(ids.tolist(), reps.tolist(), strict=True)) == {
+        k: v for k, v in counts.items() if v
+    }
 
 
 def test_filter_frames_drops_histories(small_darkroom):
@@ -62,7 +70,11 @@ def test_materialize(selection, small_darkroom, tmp_path):
     new = materialize(small_darkroom, selection, tmp_path / "m", progress=False)
     assert new.info["total_histories"] == 30 and new.info["total_frames"] == 6000
     d = new.lhf["derived_from"]
-    assert d["op"] == "lhf" and d["filter"]["strategy"] == "linear" and d["source_fingerprint"] == small_darkroom.fingerprint
+    assert (
+        d["op"] == "lhf"
+        and d["filter"]["strategy"] == "linear"
+        and d["source_fingerprint"] == small_darkroom.fingerprint
+    )
     counts = selection.counts()
     src = small_darkroom.histories.to_pandas().set_index(C.HISTORY_INDEX)
     new_returns = [tuple(r) for r in new.histories.to_pandas()[C.RETURNS]]
@@ -75,17 +87,37 @@ def test_materialize(selection, small_darkroom, tmp_path):
 
 
 def test_selection_from_another_dataset_is_refused(selection, small_darkroom, tmp_path):
-    other = type(selection)(selection.table, selection.config, {**selection.source, "fingerprint": "0" * 64})
+    other = type(selection)(
+        selection.table, selection.config, {**selection.source, "fingerprint": "0" * 64}
+    )
     with pytest.raises(ValueError, match="selection was made from dataset"):
         apply_selection(small_darkroom, other)
 
 
 def test_cli_end_to_end(small_darkroom, tmp_path, capsys):
     out = tmp_path / "sel"
-    assert main(["filter", str(small_darkroom.root), "--out", str(out), "--strategy", "softmax", "--alpha", "0.25",
-                 "--materialize", str(tmp_path / "mat")]) == 0
+    assert (
+        main(
+            [
+                "filter",
+                str(small_darkroom.root),
+                "--out",
+                str(out),
+                "--strategy",
+                "softmax",
+                "--alpha",
+                "0.25",
+                "--materialize",
+                str(tmp_path / "mat"),
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out.split("\nselection:")[0])
-    assert summary["histories"] == 30 and summary["mean_return_selection"] >= summary["mean_return_source"]
+    assert (
+        summary["histories"] == 30
+        and summary["mean_return_selection"] >= summary["mean_return_source"]
+    )
     assert (out / "selection.png").read_bytes()[:4] == b"\x89PNG"
     assert (tmp_path / "mat" / "meta" / "selection.png").exists()
     assert load_histories(tmp_path / "mat").lhf["derived_from"]["filter"]["alpha"] == 0.25
@@ -94,13 +126,19 @@ def test_cli_end_to_end(small_darkroom, tmp_path, capsys):
 
 
 def test_cli_bad_input_writes_nothing(small_darkroom, tmp_path, capsys):
-    assert main(["filter", str(small_darkroom.root), "--out", str(tmp_path / "a"), "--alpha", "-1"]) == 1
+    assert (
+        main(["filter", str(small_darkroom.root), "--out", str(tmp_path / "a"), "--alpha", "-1"])
+        == 1
+    )
     assert "alpha" in capsys.readouterr().err and not (tmp_path / "a").exists()
     bad = tmp_path / "nan"
     shutil.copytree(small_darkroom.root, bad)
     hist = pq.read_table(bad / C.HISTORIES_PATH).to_pydict()
     hist[C.RETURNS][4] = [float("nan")] + hist[C.RETURNS][4][1:]
-    pq.write_table(pa.Table.from_pydict(hist, schema=pq.read_schema(bad / C.HISTORIES_PATH)), bad / C.HISTORIES_PATH)
+    pq.write_table(
+        pa.Table.from_pydict(hist, schema=pq.read_schema(bad / C.HISTORIES_PATH)),
+        bad / C.HISTORIES_PATH,
+    )
     assert main(["filter", str(bad), "--out", str(tmp_path / "b")]) == 1
     assert "history 4: returns contain NaN" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
