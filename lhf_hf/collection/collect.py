@@ -27,8 +27,10 @@ from lhf_hf.histories.writer import (
     library_versions,
     prepare_output,
     task_done,
+    write_task,
 )
 
+from .batched_collector import collect_chunk
 from .sb3_collector import collect_and_write_task
 
 
@@ -66,25 +68,10 @@ def lhf_metadata(config: CollectConfig) -> dict:
     }
 
 
-def collect(
-    config: CollectConfig,
-    out: str | Path,
-    *,
-    resume: bool = False,
-    overwrite: bool = False,
-    progress: bool = True,
-) -> HistoryDataset:
-    """Collect ``config`` into ``out`` and return the finished dataset."""
-    out = Path(out)
-    ranks = _Ranks()
-    if ranks.rank == 0:
-        if resume and is_complete(out):
-            prepare_output(out, config.identity(), resume=True)  # same config, or a clear error
-            return load_histories(out)
-        prepare_output(out, config.identity(), resume=resume, overwrite=overwrite)
-    ranks.barrier()
-
-    tasks = list(config.tasks)
+def _run_sb3(
+    config: CollectConfig, out: Path, tasks: list[int], ranks: _Ranks, progress: bool
+) -> None:
+    """One job per task, spread over worker processes."""
     mine = list(range(ranks.rank, len(tasks), ranks.world))
     todo = [p for p in mine if not task_done(out, p, config.frames_per_task)]
     config_dict = config.to_dict()
@@ -129,6 +116,76 @@ def collect(
             f"{frames / secs:,.0f} transitions/s with {config.workers} worker(s)",
             file=sys.stderr,
         )
+
+
+def _run_batched(
+    config: CollectConfig, out: Path, tasks: list[int], ranks: _Ranks, progress: bool
+) -> None:
+    """One job per chunk of ``tasks_per_chunk`` task positions, in this process (torch threads)."""
+    K = config.tasks_per_chunk
+    chunks = [
+        list(range(c * K, min((c + 1) * K, len(tasks)))) for c in range((len(tasks) + K - 1) // K)
+    ]
+    mine = [c for c in range(len(chunks)) if c % ranks.world == ranks.rank]
+    todo = [
+        c for c in mine if not all(task_done(out, p, config.frames_per_task) for p in chunks[c])
+    ]
+    n_mine = sum(len(chunks[c]) for c in mine)
+    bar = tqdm(
+        total=n_mine,
+        initial=n_mine - sum(len(chunks[c]) for c in todo),
+        unit="task",
+        disable=not progress,
+        desc=f"collect {config.env_id} (batched)"
+        + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
+    )
+    frames, start = 0, time.perf_counter()
+    try:
+        for c in todo:
+            histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c)
+            for p, th in zip(chunks[c], histories, strict=True):
+                write_task(out, p, th, config.horizon)
+            frames += len(chunks[c]) * config.frames_per_task
+            bar.update(len(chunks[c]))
+            bar.set_postfix_str(f"{frames / (time.perf_counter() - start):,.0f} transitions/s")
+    finally:
+        bar.close()
+    if progress and todo:
+        secs = time.perf_counter() - start
+        print(
+            f"collected {frames // config.frames_per_task} tasks ({frames:,} transitions) in {secs:.1f} s: "
+            f"{frames / secs:,.0f} transitions/s (batched, {torch_threads()} torch threads)",
+            file=sys.stderr,
+        )
+
+
+def torch_threads() -> int:
+    import torch
+
+    return torch.get_num_threads()
+
+
+def collect(
+    config: CollectConfig,
+    out: str | Path,
+    *,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> HistoryDataset:
+    """Collect ``config`` into ``out`` and return the finished dataset."""
+    out = Path(out)
+    ranks = _Ranks()
+    if ranks.rank == 0:
+        if resume and is_complete(out):
+            prepare_output(out, config.identity(), resume=True)  # same config, or a clear error
+            return load_histories(out)
+        prepare_output(out, config.identity(), resume=resume, overwrite=overwrite)
+    ranks.barrier()
+
+    tasks = list(config.tasks)
+    run = _run_batched if config.collector == "batched" else _run_sb3
+    run(config, out, tasks, ranks, progress)
     ranks.barrier()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]

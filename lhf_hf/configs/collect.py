@@ -10,7 +10,9 @@ from lhf_hf.envs import get_spec
 
 PROTOCOLS = ("paper", "independent", "noisy")
 ALGOS = ("ppo", "sac")
-COLLECTORS = ("sb3",)
+COLLECTORS = ("sb3", "batched")
+#: transitions per batched chunk when tasks_per_chunk is not given (bounds memory at any scale)
+CHUNK_TRANSITIONS = 50_000_000
 
 
 @dataclass(frozen=True)
@@ -119,7 +121,8 @@ class CollectConfig:
         copy), ``independent`` (one independently seeded learner per history), or ``noisy`` (``paper``
         with ``noisy_fraction`` of the histories made by a uniform random policy instead).
     algo: source RL algorithm, ``ppo`` (any env) or ``sac`` (continuous actions only).
-    collector: ``sb3`` (Stable-Baselines3; the reference).
+    collector: ``sb3`` (Stable-Baselines3; the reference) or ``batched`` (every learner of a chunk of
+        tasks trained at once with stacked parameters; gridworlds, PPO).
     seed: root seed; task t's learners are seeded from ``SeedSequence([seed, t])``.
     split_seed: seed of the train/test split (and of the Meta-World goals).
     workers: worker processes collecting tasks in parallel (default: all cores; 1 = in this process).
@@ -127,6 +130,8 @@ class CollectConfig:
     noisy_fraction: fraction of random histories under ``noisy``; their count is ``round(f * histories)``.
     ppo: PPO settings; defaults to the paper's for the env.
     sac: SAC settings.
+    tasks_per_chunk: batched collector: tasks trained together (default: as many as fit in
+        ~50M transitions).  Part of the data's identity: it sets the chunks' random streams.
     """
 
     env_id: str
@@ -142,6 +147,7 @@ class CollectConfig:
     noisy_fraction: float = 0.3
     ppo: PPOSettings | None = None
     sac: SACSettings = field(default_factory=SACSettings)
+    tasks_per_chunk: int | None = None
 
     def __post_init__(self) -> None:
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
@@ -183,6 +189,18 @@ class CollectConfig:
         if self.ppo is None:
             self.ppo = ppo_preset(self.env_id)
         self.tasks = parse_tasks(self.tasks, self.env_id, self.split_seed)
+        if self.collector == "batched":
+            if spec.family != "gridworld" or self.algo != "ppo":
+                raise ValueError(
+                    f"CollectConfig.collector='batched' runs PPO on gridworlds only, got "
+                    f"{self.env_id} with {self.algo}; use collector='sb3'"
+                )
+            if self.tasks_per_chunk is None:
+                self.tasks_per_chunk = max(1, CHUNK_TRANSITIONS // self.frames_per_task)
+            if self.tasks_per_chunk < 1:
+                raise ValueError(
+                    f"CollectConfig.tasks_per_chunk must be >= 1, got {self.tasks_per_chunk!r}"
+                )
 
     @property
     def horizon(self) -> int:
@@ -211,4 +229,6 @@ class CollectConfig:
         """The fields that determine the data (``workers`` does not): equal identity = same dataset."""
         d = self.to_dict()
         d.pop("workers")
+        if self.collector == "sb3":
+            d.pop("tasks_per_chunk")  # SB3 tasks do not depend on chunks
         return d

@@ -84,7 +84,9 @@ def save_figure_atomic(fig, path: str | os.PathLike) -> None:
     """Save a matplotlib figure via a temporary file, then close it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.stem}.{os.getpid()}.tmp{path.suffix}"  # savefig picks the format by suffix
+    tmp = (
+        path.parent / f".{path.stem}.{os.getpid()}.tmp{path.suffix}"
+    )  # savefig picks the format by suffix
     try:
         fig.savefig(tmp)
         os.replace(tmp, path)

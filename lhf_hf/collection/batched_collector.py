@@ -1,0 +1,168 @@
+"""The batched collector: every PPO learner of a chunk of gridworld tasks trained at once.
+
+Same protocols as the SB3 collector (``paper``, ``independent``, ``noisy``), same PPO (see
+``batched_ppo``), same observation encoding (the (row, col) state as float, what SB3's MlpPolicy
+sees), same recorder semantics (true final state, oracle action before the step), same writer.
+All environments of a chunk are stepped by one ``BatchedGridworld``.
+
+Randomness is drawn per chunk (chunk c = task positions [c K, (c + 1) K)), from
+``SeedSequence([seed, c, K])``: a chunk's data depends on (seed, chunk, K) only, so a resumed run
+redoes unfinished chunks exactly.  Unlike the SB3 collector, a task's data therefore depends on
+which chunk it is in (``tasks_per_chunk`` is part of the config).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lhf_hf.configs.collect import CollectConfig
+from lhf_hf.envs import get_spec, make_batched
+from lhf_hf.histories.schema import TaskHistories
+
+from .batched_ppo import Rollout, StackedPolicy, gae, make_optimizer, ppo_update
+
+
+def chunk_seed(seed: int, chunk: int, size: int) -> int:
+    return int(np.random.SeedSequence([seed, chunk, size]).generate_state(1)[0]) & 0x7FFFFFFF
+
+
+def collect_chunk(config: CollectConfig, tasks: list[int], chunk: int) -> list[TaskHistories]:
+    """Collect every task of one chunk; returns one ``TaskHistories`` per task, in order."""
+    spec = get_spec(config.env_id)
+    H, steps, p = config.histories, config.steps, config.ppo
+    n_random = config.num_random_histories
+    if config.protocol == "independent":
+        per_task, E = H, 1  # H learners x 1 stream
+    else:
+        per_task, E = 1, H - n_random  # 1 learner x (H - n_random) streams
+    seed = chunk_seed(config.seed, chunk, config.tasks_per_chunk)
+    gen = torch.Generator().manual_seed(seed)
+    np_rng = np.random.default_rng(seed)
+    learner_tasks = np.repeat(np.asarray(tasks, dtype=np.int64), per_task)  # (L,)
+    L = learner_tasks.size
+    core = make_batched(config.env_id, np.repeat(learner_tasks, E))  # L * E copies, learner-major
+    obs_dim = spec.state_space.shape[0]
+    policy = StackedPolicy(L, obs_dim, spec.action_space.n, gen)
+    opt = make_optimizer(policy, p.learning_rate)
+
+    # Recording: (L, E, steps) — small ints while collecting, int64 in the dataset.
+    rec_obs = np.zeros((L, E, steps, obs_dim), dtype=np.int16)
+    rec_next = np.zeros_like(rec_obs)
+    rec_act = np.zeros((L, E, steps), dtype=np.int8)
+    rec_opt = np.zeros_like(rec_act)
+    rec_rew = np.zeros((L, E, steps), dtype=np.float32)
+    rec_done = np.zeros((L, E, steps), dtype=bool)
+
+    T = p.n_steps
+    buf_obs = torch.zeros(L, E, T, obs_dim)
+    buf_act = torch.zeros(L, E, T, dtype=torch.int64)
+    buf_logp, buf_val, buf_rew = torch.zeros(L, E, T), torch.zeros(L, E, T), torch.zeros(L, E, T)
+    buf_start = torch.zeros(L, E, T, dtype=torch.bool)
+
+    obs = core.reset()  # (L*E, 2)
+    episode_start = torch.ones(L, E, dtype=torch.bool)
+    with torch.no_grad():
+        for t in range(steps):
+            k = t % T
+            obs_t = torch.from_numpy(obs.reshape(L, E, obs_dim).astype(np.float32))  # (L, E, d)
+            rec_opt[:, :, t] = core.optimal_action().reshape(L, E)
+            actions, logp, values = policy.act(obs_t, gen)  # (L, E) each
+            next_obs, reward, done = core.step(actions.reshape(-1).numpy())
+            rec_obs[:, :, t] = obs.reshape(L, E, obs_dim)
+            rec_act[:, :, t] = actions.numpy()
+            rec_rew[:, :, t] = reward.reshape(L, E)
+            rec_next[:, :, t] = next_obs.reshape(L, E, obs_dim)
+            rec_done[:, :, t] = done.reshape(L, E)
+            r = torch.from_numpy(reward.reshape(L, E))
+            done_t = torch.from_numpy(done.reshape(L, E))
+            if done.any():
+                # SB3: on a time-limit truncation, add gamma * V(true final state) to the reward.
+                final_v = policy.value(
+                    torch.from_numpy(next_obs.reshape(L, E, obs_dim).astype(np.float32))
+                )
+                r = r + p.gamma * final_v * done_t
+                obs = core.reset(done)
+            else:
+                obs = next_obs
+            buf_obs[:, :, k], buf_act[:, :, k], buf_logp[:, :, k] = obs_t, actions, logp
+            buf_val[:, :, k], buf_rew[:, :, k], buf_start[:, :, k] = values, r, episode_start
+            episode_start = done_t
+            if k == T - 1 and t < steps - 1:  # the last rollout's update cannot change the data
+                last_v = policy.value(
+                    torch.from_numpy(obs.reshape(L, E, obs_dim).astype(np.float32))
+                )
+                adv, ret = gae(buf_rew, buf_val, buf_start, last_v, done_t, p.gamma)
+                flat = lambda x: x.reshape(L, E * T, *x.shape[3:])  # noqa: E731 - (L, E, T, ...) -> (L, E*T, ...) env-major like SB3
+                with torch.enable_grad():
+                    ppo_update(
+                        policy,
+                        opt,
+                        Rollout(
+                            flat(buf_obs),
+                            flat(buf_act),
+                            flat(buf_logp),
+                            flat(buf_val),
+                            flat(adv),
+                            flat(ret),
+                        ),
+                        p.n_epochs,
+                        p.batch_size,
+                        generator=gen,
+                    )
+
+    random_parts = _random_streams(config, tasks, n_random, np_rng) if n_random else None
+    out = []
+    for i, task in enumerate(tasks):
+        sl = slice(i * per_task, (i + 1) * per_task)
+        part = {  # (per_task, E, steps, ...) -> (per_task * E, steps, ...)
+            "obs": rec_obs[sl].reshape(per_task * E, steps, obs_dim).astype(np.int64),
+            "actions": rec_act[sl].reshape(per_task * E, steps).astype(np.int64),
+            "rewards": rec_rew[sl].reshape(per_task * E, steps),
+            "next_obs": rec_next[sl].reshape(per_task * E, steps, obs_dim).astype(np.int64),
+            "dones": rec_done[sl].reshape(per_task * E, steps),
+            "optimal_actions": rec_opt[sl].reshape(per_task * E, steps).astype(np.int64),
+        }
+        learner = ["ppo"] * (per_task * E)
+        learner_index = np.repeat(np.arange(per_task), E)
+        if random_parts is not None:
+            rp = {k: v[i] for k, v in random_parts.items()}
+            part = {k: np.concatenate([part[k], rp[k]]) for k in part}
+            learner += ["random"] * n_random
+            learner_index = np.concatenate([learner_index, np.full(n_random, per_task)])
+        out.append(
+            TaskHistories(
+                task=task,
+                success=None,
+                learner=learner,
+                learner_index=learner_index,
+                seeds=np.full(H, seed),
+                **part,
+            )
+        )
+    return out
+
+
+def _random_streams(
+    config: CollectConfig, tasks: list[int], n: int, rng: np.random.Generator
+) -> dict:
+    """The noisy protocol's uniform random histories: (tasks, n, steps, ...) arrays."""
+    core = make_batched(config.env_id, np.repeat(np.asarray(tasks), n))
+    B, steps = core.num_envs, config.steps
+    arrays = {
+        "obs": np.zeros((B, steps, 2), np.int64),
+        "actions": np.zeros((B, steps), np.int64),
+        "rewards": np.zeros((B, steps), np.float32),
+        "next_obs": np.zeros((B, steps, 2), np.int64),
+        "dones": np.zeros((B, steps), bool),
+        "optimal_actions": np.zeros((B, steps), np.int64),
+    }
+    obs = core.reset()
+    for t in range(steps):
+        arrays["optimal_actions"][:, t] = core.optimal_action()
+        a = rng.integers(0, 5, B)
+        nxt, r, d = core.step(a)
+        arrays["obs"][:, t], arrays["actions"][:, t], arrays["rewards"][:, t] = obs, a, r
+        arrays["next_obs"][:, t], arrays["dones"][:, t] = nxt, d
+        obs = core.reset(d) if d.any() else nxt
+    return {k: v.reshape(len(tasks), n, *v.shape[1:]) for k, v in arrays.items()}

@@ -1,0 +1,209 @@
+"""PPO for many learners at once: Stable-Baselines3's algorithm with stacked parameters.
+
+L independent learners, each exactly SB3's ``PPO("MlpPolicy", ...)`` with its defaults:
+separate 64-64 tanh actor and critic (``net_arch=dict(pi=[64, 64], vf=[64, 64])``), orthogonal
+initialisation (gain sqrt(2) for hidden layers, 0.01 for the action head, 1 for the value head,
+zero biases), Adam (eps 1e-5), GAE lambda 0.95, clip 0.2, value coefficient 0.5, entropy 0,
+gradient-norm clip 0.5 per learner, per-minibatch advantage normalisation (unbiased std), value
+bootstrap on time-limit truncation.  Learner l's weights are slice l of (L, in, out) tensors, so one
+``baddbmm`` runs a layer of every learner; the summed loss gives each learner its own gradient and
+Adam is elementwise, so a stacked update is L independent SB3 updates (``tests/collection`` checks
+one update against SB3's own ``PPO.train``).
+
+Read top to bottom: ``StackedMLP`` -> ``StackedPolicy`` -> ``gae`` -> ``ppo_update``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+CLIP_RANGE = 0.2
+GAE_LAMBDA = 0.95
+VF_COEF = 0.5
+MAX_GRAD_NORM = 0.5
+ADAM_EPS = 1e-5  # SB3 sets eps=1e-5 for the policies' Adam
+
+
+class StackedMLP(nn.Module):
+    """L independent MLPs ``sizes[0] -> ... -> sizes[-1]``, tanh between layers, none at the end."""
+
+    def __init__(
+        self, num_learners: int, sizes: list[int], gains: list[float], generator: torch.Generator
+    ) -> None:
+        super().__init__()
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for fan_in, fan_out, gain in zip(sizes[:-1], sizes[1:], gains, strict=True):
+            w = torch.empty(num_learners, fan_out, fan_in)  # (L, out, in) like nn.Linear.weight
+            for l in range(num_learners):  # noqa: E741 - SB3: nn.init.orthogonal_(module.weight, gain)
+                w[l] = _orthogonal(fan_out, fan_in, gain, generator)
+            self.weights.append(nn.Parameter(w.transpose(1, 2).contiguous()))  # (L, in, out)
+            self.biases.append(nn.Parameter(torch.zeros(num_learners, 1, fan_out)))  # (L, 1, out)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x: (L, B, in) -> (L, B, out)."""
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            x = torch.baddbmm(b, x, w)  # (L, B, out)
+            if i < last:
+                x = torch.tanh(x)
+        return x
+
+
+def _orthogonal(rows: int, cols: int, gain: float, generator: torch.Generator) -> torch.Tensor:
+    """``torch.nn.init.orthogonal_`` with an explicit generator: QR of a Gaussian, sign-fixed."""
+    flat = torch.randn(max(rows, cols), min(rows, cols), generator=generator)
+    q, r = torch.linalg.qr(flat)
+    q = q * torch.sign(torch.diagonal(r)).unsqueeze(0)
+    if rows < cols:
+        q = q.T
+    return gain * q[:rows, :cols]
+
+
+class StackedPolicy(nn.Module):
+    """SB3 ``ActorCriticPolicy`` (MlpPolicy, discrete actions) for L learners."""
+
+    def __init__(
+        self,
+        num_learners: int,
+        obs_dim: int,
+        num_actions: int,
+        generator: torch.Generator,
+        hidden: tuple[int, int] = (64, 64),
+    ) -> None:
+        super().__init__()
+        s2 = math.sqrt(2)
+        # SB3 initialises mlp_extractor (gain sqrt 2), then action_net (0.01), then value_net (1).
+        self.actor = StackedMLP(
+            num_learners, [obs_dim, *hidden, num_actions], [s2, s2, 0.01], generator
+        )
+        self.critic = StackedMLP(num_learners, [obs_dim, *hidden, 1], [s2, s2, 1.0], generator)
+        self.num_learners = num_learners
+
+    def logits(self, obs: torch.Tensor) -> torch.Tensor:
+        """obs (L, B, obs_dim) float -> logits (L, B, A)."""
+        return self.actor(obs)
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        """obs (L, B, obs_dim) -> values (L, B)."""
+        return self.critic(obs).squeeze(-1)
+
+    def act(
+        self, obs: torch.Tensor, generator: torch.Generator
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Sample actions: (actions (L, B) int64, log-probs (L, B), values (L, B))."""
+        with torch.no_grad():
+            logp_all = torch.log_softmax(self.logits(obs), dim=-1)  # (L, B, A)
+            L, B, A = logp_all.shape
+            actions = torch.multinomial(
+                logp_all.exp().reshape(L * B, A), 1, generator=generator
+            ).reshape(L, B)
+            logp = logp_all.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
+            return actions, logp, self.value(obs)
+
+
+def gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    episode_starts: torch.Tensor,
+    last_values: torch.Tensor,
+    last_dones: torch.Tensor,
+    gamma: float,
+    lam: float = GAE_LAMBDA,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """SB3's ``compute_returns_and_advantage`` on (L, E, T) tensors (T = rollout steps).
+
+    ``episode_starts[..., t]``: obs t is the first of an episode; ``last_dones`` (L, E): the last step
+    ended an episode.  Returns (advantages, returns), each (L, E, T).
+    """
+    T = rewards.shape[-1]
+    adv = torch.zeros_like(rewards)
+    last = torch.zeros_like(last_values)
+    for t in reversed(range(T)):
+        if t == T - 1:
+            non_terminal, next_values = 1.0 - last_dones.float(), last_values
+        else:
+            non_terminal, next_values = 1.0 - episode_starts[..., t + 1].float(), values[..., t + 1]
+        delta = rewards[..., t] + gamma * next_values * non_terminal - values[..., t]
+        last = delta + gamma * lam * non_terminal * last
+        adv[..., t] = last
+    return adv, adv + values
+
+
+@dataclass
+class Rollout:
+    """One rollout of every learner, flattened env-major like SB3's buffer: (L, N) with N = E * T."""
+
+    obs: torch.Tensor  # (L, N, obs_dim) float
+    actions: torch.Tensor  # (L, N) int64
+    old_logp: torch.Tensor  # (L, N)
+    old_values: torch.Tensor  # (L, N)
+    advantages: torch.Tensor  # (L, N)
+    returns: torch.Tensor  # (L, N)
+
+
+def ppo_update(
+    policy: StackedPolicy,
+    optimizer: torch.optim.Optimizer,
+    data: Rollout,
+    n_epochs: int,
+    batch_size: int,
+    permutations: list[torch.Tensor] | None = None,
+    generator: torch.Generator | None = None,
+) -> None:
+    """SB3 ``PPO.train`` for every learner at once.
+
+    ``permutations``: one (L, N) index tensor per epoch (tests pass SB3's); by default each learner
+    draws its own random permutation per epoch.
+    """
+    L, N = data.actions.shape
+    params = list(policy.parameters())
+    for epoch in range(n_epochs):
+        perm = (
+            permutations[epoch]
+            if permutations is not None
+            else torch.argsort(torch.rand(L, N, generator=generator), dim=1)
+        )  # (L, N)
+        for start in range(0, N, batch_size):
+            idx = perm[:, start : start + batch_size]  # (L, b)
+            obs = data.obs.gather(
+                1, idx.unsqueeze(-1).expand(-1, -1, data.obs.shape[-1])
+            )  # (L, b, d)
+            actions = data.actions.gather(1, idx)
+            adv = data.advantages.gather(1, idx)
+            if adv.shape[1] > 1:
+                adv = (adv - adv.mean(1, keepdim=True)) / (adv.std(1, keepdim=True) + 1e-8)
+            logp = (
+                torch.log_softmax(policy.logits(obs), dim=-1)
+                .gather(-1, actions.unsqueeze(-1))
+                .squeeze(-1)
+            )
+            ratio = torch.exp(logp - data.old_logp.gather(1, idx))
+            policy_loss = -torch.min(
+                adv * ratio, adv * torch.clamp(ratio, 1 - CLIP_RANGE, 1 + CLIP_RANGE)
+            ).mean(1)
+            value_loss = ((data.returns.gather(1, idx) - policy.value(obs)) ** 2).mean(1)
+            loss = (
+                policy_loss + VF_COEF * value_loss
+            ).sum()  # (L,) summed: each learner its own gradient
+            optimizer.zero_grad(set_to_none=False)
+            loss.backward()
+            clip_grad_norm_per_learner(params, MAX_GRAD_NORM)
+            optimizer.step()
+
+
+def clip_grad_norm_per_learner(params: list[torch.Tensor], max_norm: float) -> None:
+    """``torch.nn.utils.clip_grad_norm_`` applied to each learner's slice of every parameter."""
+    with torch.no_grad():
+        sq = torch.stack([p.grad.pow(2).flatten(1).sum(1) for p in params]).sum(0)  # (L,)
+        coef = torch.clamp(max_norm / (sq.sqrt() + 1e-6), max=1.0)  # (L,)
+        for p in params:
+            p.grad.mul_(coef.view(-1, *([1] * (p.grad.dim() - 1))))
+
+
+def make_optimizer(policy: StackedPolicy, lr: float) -> torch.optim.Optimizer:
+    return torch.optim.Adam(policy.parameters(), lr=lr, eps=ADAM_EPS)
