@@ -25,9 +25,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--noisy-fraction", type=float, default=0.3, help="random histories under --protocol noisy"
     )
     p.add_argument("--algo", default="ppo", choices=["ppo", "sac"])
-    p.add_argument("--collector", default="sb3", choices=["sb3", "batched"],
-                   help="sb3: one SB3 learner per job (reference); batched: all learners of a chunk of tasks at once")
-    p.add_argument("--tasks-per-chunk", type=int, default=None, help="batched: tasks trained together")
+    p.add_argument(
+        "--collector",
+        default="sb3",
+        choices=["sb3", "batched"],
+        help="sb3: one SB3 learner per job (reference); batched: all learners of a chunk of tasks at once",
+    )
+    p.add_argument(
+        "--tasks-per-chunk", type=int, default=None, help="batched: tasks trained together"
+    )
     p.add_argument("--seed", type=int, default=0, help="root seed of the learners")
     p.add_argument(
         "--split-seed", type=int, default=0, help="train/test split seed (and Meta-World goals)"

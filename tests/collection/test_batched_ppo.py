@@ -15,15 +15,34 @@ def test_gae_equals_sb3():
     rng = np.random.default_rng(0)
     T, E = 20, 3
     env = make("darkroom", 0)
-    buf = RolloutBuffer(T, env.observation_space, env.action_space, gamma=0.99, gae_lambda=0.95, n_envs=E)
-    rewards, values = rng.normal(size=(T, E)).astype(np.float32), rng.normal(size=(T, E)).astype(np.float32)
+    buf = RolloutBuffer(
+        T, env.observation_space, env.action_space, gamma=0.99, gae_lambda=0.95, n_envs=E
+    )
+    rewards, values = (
+        rng.normal(size=(T, E)).astype(np.float32),
+        rng.normal(size=(T, E)).astype(np.float32),
+    )
     starts = rng.random((T, E)) < 0.2
     for t in range(T):
-        buf.add(np.zeros((E, 2)), np.zeros((E, 1)), rewards[t], starts[t], torch.tensor(values[t]), torch.zeros(E))
+        buf.add(
+            np.zeros((E, 2)),
+            np.zeros((E, 1)),
+            rewards[t],
+            starts[t],
+            torch.tensor(values[t]),
+            torch.zeros(E),
+        )
     last_values, dones = rng.normal(size=E).astype(np.float32), np.array([True, False, True])
     buf.compute_returns_and_advantage(torch.tensor(last_values), dones)
     to = lambda x: torch.tensor(x).T.unsqueeze(0)  # noqa: E731 - (T, E) -> (1, E, T)
-    adv, ret = gae(to(rewards), to(values), to(starts), torch.tensor(last_values)[None], torch.tensor(dones)[None], 0.99)
+    adv, ret = gae(
+        to(rewards),
+        to(values),
+        to(starts),
+        torch.tensor(last_values)[None],
+        torch.tensor(dones)[None],
+        0.99,
+    )
     np.testing.assert_allclose(adv[0].T.numpy(), buf.advantages, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(ret[0].T.numpy(), buf.returns, rtol=1e-5, atol=1e-6)
 
@@ -46,7 +65,9 @@ def _compare(policy: StackedPolicy, model: PPO, learner: int, atol: float) -> No
     ours = StackedPolicy(1, 2, 5, torch.Generator().manual_seed(0))
     _copy_sb3_into(ours, model, 0)
     for a, b in zip(policy.parameters(), ours.parameters(), strict=True):
-        np.testing.assert_allclose(a[learner].detach().numpy(), b[0].detach().numpy(), atol=atol, rtol=0)
+        np.testing.assert_allclose(
+            a[learner].detach().numpy(), b[0].detach().numpy(), atol=atol, rtol=0
+        )
 
 
 def test_forward_and_init_match_sb3_architecture():
@@ -58,8 +79,12 @@ def test_forward_and_init_match_sb3_architecture():
         dist = model.policy.get_distribution(obs)
         values = model.policy.predict_values(obs).squeeze(-1)
         logits = policy.logits(obs.expand(2, -1, -1))[1]
-        np.testing.assert_allclose(torch.log_softmax(logits, -1).numpy(), dist.distribution.logits.numpy(), atol=1e-6)
-        np.testing.assert_allclose(policy.value(obs.expand(2, -1, -1))[1].numpy(), values.numpy(), atol=1e-6)
+        np.testing.assert_allclose(
+            torch.log_softmax(logits, -1).numpy(), dist.distribution.logits.numpy(), atol=1e-6
+        )
+        np.testing.assert_allclose(
+            policy.value(obs.expand(2, -1, -1))[1].numpy(), values.numpy(), atol=1e-6
+        )
     # SB3's init: orthogonal rows/cols scaled by the gain, zero biases
     for mlp, head_gain in ((policy.actor, 0.01), (policy.critic, 1.0)):
         for w, gain in zip(mlp.weights, [np.sqrt(2), np.sqrt(2), head_gain], strict=True):
@@ -73,28 +98,60 @@ def test_forward_and_init_match_sb3_architecture():
 @pytest.mark.filterwarnings("ignore:You have specified a mini-batch size")
 def test_one_update_equals_sb3_train(n_epochs, batch_size):
     E, T = 4, 40
-    model = PPO("MlpPolicy", DummyVecEnv([lambda: make("darkroom", 30)] * E), n_steps=T, batch_size=batch_size,
-                n_epochs=n_epochs, seed=3, device="cpu")
+    model = PPO(
+        "MlpPolicy",
+        DummyVecEnv([lambda: make("darkroom", 30)] * E),
+        n_steps=T,
+        batch_size=batch_size,
+        n_epochs=n_epochs,
+        seed=3,
+        device="cpu",
+    )
     _, callback = model._setup_learn(T * E, callback=None)
     callback.on_training_start(locals(), globals())
     model.collect_rollouts(model.env, callback, model.rollout_buffer, n_rollout_steps=T)
     rb = model.rollout_buffer
     flat = lambda x: torch.tensor(np.swapaxes(x, 0, 1).reshape(E * T, *x.shape[2:]))[None]  # noqa: E731 - env-major like SB3
-    data = Rollout(obs=flat(rb.observations).float(), actions=flat(rb.actions[..., 0]).long(),
-                   old_logp=flat(rb.log_probs), old_values=flat(rb.values), advantages=flat(rb.advantages),
-                   returns=flat(rb.returns))
+    data = Rollout(
+        obs=flat(rb.observations).float(),
+        actions=flat(rb.actions[..., 0]).long(),
+        old_logp=flat(rb.log_probs),
+        old_values=flat(rb.values),
+        advantages=flat(rb.advantages),
+        returns=flat(rb.returns),
+    )
     # Learner 1 of a stack of 3 gets SB3's weights; the others are distractors with their own weights.
     policy = StackedPolicy(3, 2, 5, torch.Generator().manual_seed(5))
     _copy_sb3_into(policy, model, 1)
-    data3 = Rollout(*(torch.cat([x, x, x]) for x in (data.obs, data.actions, data.old_logp, data.old_values,
-                                                       data.advantages, data.returns)))
+    data3 = Rollout(
+        *(
+            torch.cat([x, x, x])
+            for x in (
+                data.obs,
+                data.actions,
+                data.old_logp,
+                data.old_values,
+                data.advantages,
+                data.returns,
+            )
+        )
+    )
     np.random.seed(11)
     perms = [torch.tensor(np.random.permutation(E * T)) for _ in range(n_epochs)]
     before = [p.detach().clone() for p in model.policy.parameters()]
     np.random.seed(11)  # SB3's buffer draws np.random.permutation once per epoch
     model.train()
-    moved = max(float((p.detach() - b).abs().max()) for p, b in zip(model.policy.parameters(), before, strict=True))
+    moved = max(
+        float((p.detach() - b).abs().max())
+        for p, b in zip(model.policy.parameters(), before, strict=True)
+    )
     assert moved > 50 * 2e-5, "the update must move the weights well beyond the tolerance"
-    ppo_update(policy, make_optimizer(policy, 3e-4), data3, n_epochs, batch_size,
-               permutations=[p.expand(3, -1) for p in perms])
+    ppo_update(
+        policy,
+        make_optimizer(policy, 3e-4),
+        data3,
+        n_epochs,
+        batch_size,
+        permutations=[p.expand(3, -1) for p in perms],
+    )
     _compare(policy, model, 1, atol=2e-5)
