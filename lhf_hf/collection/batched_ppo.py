@@ -199,11 +199,14 @@ def ppo_update(
 def clip_grad_norm_per_learner(params: list[torch.Tensor], max_norm: float) -> None:
     """``torch.nn.utils.clip_grad_norm_`` applied to each learner's slice of every parameter."""
     with torch.no_grad():
-        sq = torch.stack([p.grad.pow(2).flatten(1).sum(1) for p in params]).sum(0)  # (L,)
-        coef = torch.clamp(max_norm / (sq.sqrt() + 1e-6), max=1.0)  # (L,)
-        for p in params:
-            p.grad.mul_(coef.view(-1, *([1] * (p.grad.dim() - 1))))
+        grads = [p.grad for p in params]
+        sq = (
+            torch.stack([torch.linalg.vector_norm(g, dim=(1, 2)) for g in grads]).square().sum(0)
+        )  # (L,)
+        coef = torch.clamp(max_norm / (sq.sqrt() + 1e-6), max=1.0).view(-1, 1, 1)  # (L, 1, 1)
+        torch._foreach_mul_(grads, [coef] * len(grads))
 
 
 def make_optimizer(policy: StackedPolicy, lr: float) -> torch.optim.Optimizer:
-    return torch.optim.Adam(policy.parameters(), lr=lr, eps=ADAM_EPS)
+    # fused: one kernel for all parameters (the same Adam; it is elementwise, so stacking is exact).
+    return torch.optim.Adam(policy.parameters(), lr=lr, eps=ADAM_EPS, fused=True)

@@ -3,6 +3,8 @@
 Both map the task's U values to [0, 1] by min-max normalisation, so the best history of the task
 gets P = 1 and the worst P = 0.  When all U are equal (or the task has one history) every P is 1:
 the task keeps its histories unchanged (the reference code divides by zero and drops the task).
+Equality is judged on the transformed values: softmax scores that differ by less than the float
+resolution of exp(U / alpha) count as equal.
 """
 
 from __future__ import annotations

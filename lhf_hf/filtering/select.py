@@ -52,28 +52,31 @@ def _r_max_lookup(r_max, env_id: str | None) -> dict | float:
     return {t: float(v) for t, v in enumerate(spec.optimal_returns())}
 
 
-def _score_batch(batch: dict, lam: float, r_max) -> dict:
-    """Batched ``datasets.map`` function: Improvement, Stability, U of each history in the batch."""
-    hist = batch[C.HISTORY_INDEX]
-    returns = batch[C.RETURNS]
-    tasks = batch[C.TASK_INDEX]
-    out = {k: np.zeros(len(hist)) for k in SCORE_COLUMNS}
-    lengths = np.array([len(r) if r is not None else 0 for r in returns])
+def _score_batch(batch: pa.Table, lam: float, r_max) -> pa.Table:
+    """Batched ``datasets.map`` function on Arrow batches: Improvement, Stability, U per history."""
+    hist = batch.column(C.HISTORY_INDEX).to_numpy()
+    tasks = batch.column(C.TASK_INDEX).to_numpy()
+    returns = batch.column(C.RETURNS).combine_chunks()
+    lengths = pa.compute.list_value_length(returns).fill_null(0).to_numpy(zero_copy_only=False)
     if np.any(lengths == 0):
         raise ValueError(
             f"history {hist[int(np.argmax(lengths == 0))]}: empty list of episode returns"
         )
-    rmax = np.array(
-        [r_max if isinstance(r_max, float) else r_max.get(int(t), np.nan) for t in tasks]
-    )
+    if isinstance(r_max, float):
+        rmax = np.full(tasks.size, r_max)
+    else:
+        rmax = np.array([r_max.get(int(t), np.nan) for t in tasks])
     if np.any(~np.isfinite(rmax)):
-        raise ValueError(
-            f"history {hist[int(np.argmax(~np.isfinite(rmax)))]}: no r_max for task "
-            f"{tasks[int(np.argmax(~np.isfinite(rmax)))]}"
-        )
+        i = int(np.argmax(~np.isfinite(rmax)))
+        raise ValueError(f"history {hist[i]}: no r_max for task {tasks[i]}")
+    values = (
+        returns.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
+    )  # all returns, concatenated
+    offsets = returns.offsets.to_numpy()[:-1] - returns.offsets.to_numpy()[0]
+    out = {k: np.zeros(hist.size) for k in SCORE_COLUMNS}
     for length in np.unique(lengths):  # histories of equal length are scored together
         rows = np.flatnonzero(lengths == length)
-        r = np.asarray([returns[i] for i in rows], dtype=np.float64)  # (n, E)
+        r = values[offsets[rows, None] + np.arange(length)]  # (n, E)
         bad = ~np.isfinite(r).all(1)
         if bad.any():
             raise ValueError(
@@ -82,7 +85,9 @@ def _score_batch(batch: dict, lam: float, r_max) -> dict:
         s = score_arrays(r, rmax[rows], lam)
         for k in SCORE_COLUMNS:
             out[k][rows] = s[k]
-    return out
+    for k in SCORE_COLUMNS:
+        batch = batch.append_column(k, pa.array(out[k]))
+    return batch
 
 
 def score_histories(
@@ -99,15 +104,18 @@ def score_histories(
     if histories.num_rows == 0:
         raise ValueError("the histories table is empty")
     lookup = _r_max_lookup(r_max, env_id)
-    return histories.map(
-        _score_batch,
-        batched=True,
-        batch_size=4096,
-        fn_kwargs={"lam": lam, "r_max": lookup},
-        input_columns=None,
-        desc="LHF scores",
-        load_from_cache_file=False,
-        new_fingerprint=None,
+    # Arrow batches: the returns lists are read as one flat array, no per-history Python lists.
+    return (
+        histories.with_format("arrow")
+        .map(
+            _score_batch,
+            batched=True,
+            batch_size=4096,
+            fn_kwargs={"lam": lam, "r_max": lookup},
+            desc="LHF scores",
+            load_from_cache_file=False,
+        )
+        .with_format(None)
     )
 
 

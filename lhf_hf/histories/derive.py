@@ -6,7 +6,9 @@ histories?", first 50%).  LHF materialisation (``lhf_hf.filtering.materialize``)
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -43,8 +45,23 @@ def write_derived(
         return load_histories(out)
     prepare_output(out, identity, resume=resume, overwrite=overwrite)
     todo = [p for p in range(len(tasks)) if not task_done(out, p, H * steps)]
-    for p in tqdm(todo, desc=f"derive {derived['op']}", unit="task", disable=not progress):
+
+    def one(p: int) -> None:
         write_task(out, p, transform(tasks[p], source.task_histories(tasks[p])), horizon)
+
+    source.task_histories(
+        tasks[0]
+    ) if todo else None  # build the shared caches before the threads start
+    # Threads: parquet reads/writes, hashing and numpy reductions release the GIL.
+    with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+        for _ in tqdm(
+            pool.map(one, todo),
+            total=len(todo),
+            desc=f"derive {derived['op']}",
+            unit="task",
+            disable=not progress,
+        ):
+            pass
     keep = ("tasks", "seed", "terminal_convention")
     meta = {k: v for k, v in source.lhf.items() if k in keep}
     meta["versions"] = library_versions()

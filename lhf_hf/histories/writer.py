@@ -119,6 +119,7 @@ def prepare_output(
 
 
 def _partial_stats(table: pa.Table) -> dict:
+    """Per-feature min/max/sum/sum of squares/count of one task (merged at finalize)."""
     out = {}
     for name in NUMERIC_STATS:
         if name not in table.column_names:
@@ -128,12 +129,12 @@ def _partial_stats(table: pa.Table) -> dict:
             x = col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), col.type.list_size)
         else:
             x = col.to_numpy(zero_copy_only=False).reshape(-1, 1)
-        x = x.astype(np.float64)
+        xf = x.astype(np.float64, copy=False)
         out[name] = {
             "min": x.min(0).tolist(),
             "max": x.max(0).tolist(),
-            "sum": x.sum(0).tolist(),
-            "sumsq": (x * x).sum(0).tolist(),
+            "sum": xf.sum(0).tolist(),
+            "sumsq": np.einsum("ij,ij->j", xf, xf).tolist(),
             "count": int(x.shape[0]),
         }
     return out
