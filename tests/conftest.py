@@ -19,3 +19,20 @@ def small_darkroom(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("small") / "darkroom"
     return collect(CollectConfig(**SMALL), root, progress=False)
+
+
+@pytest.fixture(scope="session")
+def small_darkroom_batched(tmp_path_factory):
+    from lhf_hf.collection import collect
+    from lhf_hf.configs import CollectConfig
+
+    root = tmp_path_factory.mktemp("small") / "darkroom-batched"
+    return collect(CollectConfig(**SMALL, collector="batched"), root, progress=False)
+
+
+@pytest.fixture(params=["sb3", "batched"])
+def collected(request):
+    """The small collection made by each collector (invariants must hold for both)."""
+    return request.getfixturevalue(
+        "small_darkroom" if request.param == "sb3" else "small_darkroom_batched"
+    )

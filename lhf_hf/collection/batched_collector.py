@@ -27,7 +27,9 @@ def chunk_seed(seed: int, chunk: int, size: int) -> int:
     return int(np.random.SeedSequence([seed, chunk, size]).generate_state(1)[0]) & 0x7FFFFFFF
 
 
-def collect_chunk(config: CollectConfig, tasks: list[int], chunk: int) -> list[TaskHistories]:
+def collect_chunk(
+    config: CollectConfig, tasks: list[int], chunk: int, progress: bool = False
+) -> list[TaskHistories]:
     """Collect every task of one chunk; returns one ``TaskHistories`` per task, in order."""
     spec = get_spec(config.env_id)
     H, steps, p = config.histories, config.steps, config.ppo
@@ -62,8 +64,19 @@ def collect_chunk(config: CollectConfig, tasks: list[int], chunk: int) -> list[T
 
     obs = core.reset()  # (L*E, 2)
     episode_start = torch.ones(L, E, dtype=torch.bool)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(
+        total=steps,
+        desc=f"chunk {chunk} ({len(tasks)} tasks, {L * E} copies)",
+        unit="step",
+        leave=False,
+        disable=not progress,
+        mininterval=1.0,
+    )
     with torch.no_grad():
         for t in range(steps):
+            bar.update(1)
             k = t % T
             obs_t = torch.from_numpy(obs.reshape(L, E, obs_dim).astype(np.float32))  # (L, E, d)
             rec_opt[:, :, t] = core.optimal_action().reshape(L, E)
@@ -111,6 +124,7 @@ def collect_chunk(config: CollectConfig, tasks: list[int], chunk: int) -> list[T
                         generator=gen,
                     )
 
+    bar.close()
     random_parts = _random_streams(config, tasks, n_random, np_rng) if n_random else None
     out = []
     for i, task in enumerate(tasks):

@@ -142,7 +142,7 @@ def _run_batched(
     frames, start = 0, time.perf_counter()
     try:
         for c in todo:
-            histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c)
+            histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c, progress=progress)
             for p, th in zip(chunks[c], histories, strict=True):
                 write_task(out, p, th, config.horizon)
             frames += len(chunks[c]) * config.frames_per_task

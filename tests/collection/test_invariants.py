@@ -14,22 +14,22 @@ def frames(ds):
     return t, obs, nxt
 
 
-def test_episode_return_is_sum_of_rewards(small_darkroom):
-    t, _, _ = frames(small_darkroom)
+def test_episode_return_is_sum_of_rewards(collected):
+    t, _, _ = frames(collected)
     rewards = t.column(C.REWARD).to_numpy()
     episode = t.column(C.EPISODE_INDEX).to_numpy()
     sums = np.bincount(episode, weights=rewards)
-    ep = small_darkroom.episodes.to_pandas().sort_values(C.EPISODE_INDEX)
+    ep = collected.episodes.to_pandas().sort_values(C.EPISODE_INDEX)
     np.testing.assert_allclose(ep[C.EPISODE_RETURN].to_numpy(), sums, rtol=0, atol=1e-6)
     # and the histories table lists the same returns, in episode order
-    hist = small_darkroom.histories.to_pandas()
+    hist = collected.histories.to_pandas()
     for _, row in hist.iterrows():
         mine = ep[ep[C.HISTORY_INDEX] == row[C.HISTORY_INDEX]].sort_values(C.EPISODE_IN_HISTORY)
         np.testing.assert_allclose(row[C.RETURNS], mine[C.EPISODE_RETURN].to_numpy())
 
 
-def test_next_state_chains_within_episodes_and_is_true_at_the_end(small_darkroom):
-    t, obs, nxt = frames(small_darkroom)
+def test_next_state_chains_within_episodes_and_is_true_at_the_end(collected):
+    t, obs, nxt = frames(collected)
     done = t.column(C.DONE).to_numpy()
     history = t.column(C.HISTORY_INDEX).to_numpy()
     same_history = history[:-1] == history[1:]
@@ -49,8 +49,8 @@ def test_next_state_chains_within_episodes_and_is_true_at_the_end(small_darkroom
     assert np.all(obs[first] == [4, 4])
 
 
-def test_reward_and_oracle_follow_the_task(small_darkroom):
-    t, obs, nxt = frames(small_darkroom)
+def test_reward_and_oracle_follow_the_task(collected):
+    t, obs, nxt = frames(collected)
     task = t.column(C.TASK_INDEX).to_numpy()
     goal = np.stack(np.divmod(task, 9), axis=1)
     np.testing.assert_array_equal(
@@ -67,8 +67,8 @@ def test_reward_and_oracle_follow_the_task(small_darkroom):
     np.testing.assert_array_equal(opt, expected)
 
 
-def test_histories_are_contiguous_slices_with_whole_episodes(small_darkroom):
-    ds = small_darkroom
+def test_histories_are_contiguous_slices_with_whole_episodes(collected):
+    ds = collected
     t = ds.frame_table([C.INDEX, C.HISTORY_INDEX, C.EPISODE_INDEX, C.FRAME_INDEX])
     index = t.column(C.INDEX).to_numpy()
     np.testing.assert_array_equal(index, np.arange(len(index)))
@@ -87,23 +87,23 @@ def test_histories_are_contiguous_slices_with_whole_episodes(small_darkroom):
     np.testing.assert_array_equal(frame_index, np.tile(np.arange(20), len(index) // 20))
 
 
-def test_noisy_protocol_has_exactly_30_percent_random(small_darkroom):
-    hist = small_darkroom.histories.to_pandas()
+def test_noisy_protocol_has_exactly_30_percent_random(collected):
+    hist = collected.histories.to_pandas()
     for _, group in hist.groupby(C.TASK_INDEX):
         assert (group[C.LEARNER] == "random").sum() == 3 and (group[C.LEARNER] == "ppo").sum() == 7
         assert (
             group[group[C.LEARNER] == "ppo"][C.SEED].nunique() == 1
         )  # paper protocol: one learner
     # random histories are uniformly random: all 5 actions, each ~20% of the time
-    t = small_darkroom.frame_table([C.ACTION, C.HISTORY_INDEX])
+    t = collected.frame_table([C.ACTION, C.HISTORY_INDEX])
     random_ids = hist.loc[hist[C.LEARNER] == "random", C.HISTORY_INDEX].to_numpy()
     acts = t.column(C.ACTION).to_numpy()[np.isin(t.column(C.HISTORY_INDEX).to_numpy(), random_ids)]
     freq = np.bincount(acts, minlength=5) / len(acts)
     assert np.all(np.abs(freq - 0.2) < 0.04)
 
 
-def test_info_records_config_versions_seeds(small_darkroom):
-    lhf = small_darkroom.lhf
+def test_info_records_config_versions_seeds(collected):
+    lhf = collected.lhf
     assert lhf["collect"]["protocol"] == "noisy" and lhf["collect"]["tasks"] == [3, 40, 62]
     assert lhf["collect"]["ppo"] == {
         "n_steps": 20,
@@ -115,7 +115,7 @@ def test_info_records_config_versions_seeds(small_darkroom):
     for lib in ("stable-baselines3", "torch", "gymnasium", "datasets", "lhf_hf"):
         assert lib in lhf["versions"]
     assert lhf["seed"] == 0 and len(lhf["fingerprint"]) == 64
-    info = small_darkroom.info
+    info = collected.info
     assert (
         info["codebase_version"] == "v3.0"
         and info["total_frames"] == 6000
@@ -125,18 +125,18 @@ def test_info_records_config_versions_seeds(small_darkroom):
     assert info["features"][C.ACTION]["dtype"] == "int64"
 
 
-def test_stats_match_the_frames(small_darkroom):
-    t, obs, _ = frames(small_darkroom)
-    s = small_darkroom.stats[C.OBS]
+def test_stats_match_the_frames(collected):
+    t, obs, _ = frames(collected)
+    s = collected.stats[C.OBS]
     np.testing.assert_allclose(s["mean"], obs.mean(0))
     np.testing.assert_allclose(s["std"], obs.std(0), rtol=1e-6)
     assert s["min"] == obs.min(0).tolist() and s["count"] == [len(obs)]
     r = t.column(C.REWARD).to_numpy()
-    np.testing.assert_allclose(small_darkroom.stats[C.REWARD]["mean"], [r.mean()], rtol=1e-6)
+    np.testing.assert_allclose(collected.stats[C.REWARD]["mean"], [r.mean()], rtol=1e-6)
 
 
-def test_parquet_files_in_lerobot_layout(small_darkroom):
-    root = small_darkroom.root
+def test_parquet_files_in_lerobot_layout(collected):
+    root = collected.root
     for p in range(3):
         f = root / f"data/chunk-000/file-{p:03d}.parquet"
         assert pq.ParquetFile(f).metadata.num_rows == 2000
