@@ -1,9 +1,12 @@
 import os
+import tempfile
 
 import pytest
 
 # Headless MuJoCo for every test process (and the subprocesses they start).
 os.environ.setdefault("MUJOCO_GL", "disable")
+# Keep the tests' Hugging Face caches (datasets' Arrow cache) out of the user's ~/.cache.
+os.environ.setdefault("HF_HOME", tempfile.mkdtemp(prefix="lhf-tests-hf-"))
 
 #: A small real collection shared by the histories/collection tests: 3 Darkroom tasks, 10 histories
 #: of 200 transitions, noisy protocol (7 PPO + 3 random histories per task).

@@ -227,7 +227,7 @@ def finalize(
 
     Returns the loaded ``HistoryDataset``.
     """
-    from lhf_hf.envs import get_spec, make
+    from lhf_hf.envs import get_spec
 
     from .card import write_card
     from .reader import load_histories
@@ -254,9 +254,11 @@ def finalize(
     train, _ = spec.split(split_seed)
     train = set(train)
     rows = []
+    from lhf_hf.envs import GRIDWORLD_VARIANTS
+
     for t in tasks:
-        if spec.family == "gridworld":
-            params = make(env_id, t).unwrapped.task_parameters()
+        if env_id in GRIDWORLD_VARIANTS:
+            params = GRIDWORLD_VARIANTS[env_id].describe_task(t)
         else:  # building 100 Meta-World envs only for their goal vectors is not worth it here
             params = {"ml1_task_index": t, "split_seed": split_seed}
         readable = ", ".join(
