@@ -91,7 +91,7 @@ def test_forward_and_init_match_sb3_architecture():
             m = w[0].detach().T  # (out, in) of learner 0 (our own init)
             gram = m @ m.T if m.shape[0] <= m.shape[1] else m.T @ m
             np.testing.assert_allclose(gram.numpy(), gain**2 * np.eye(gram.shape[0]), atol=1e-5)
-        assert all(float(b.abs().max()) == 0 for b in mlp.biases)
+        assert all(float(b.detach().abs().max()) == 0 for b in mlp.biases)
 
 
 @pytest.mark.parametrize("n_epochs, batch_size", [(2, 50), (3, 64)])

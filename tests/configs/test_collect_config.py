@@ -20,7 +20,7 @@ from lhf_hf.configs.collect import ppo_preset
         (dict(tasks=[]), "empty"),
         (dict(noisy_fraction=1.0), "noisy_fraction"),
         (dict(protocol="noisy", histories=1, noisy_fraction=0.9), "no learner histories"),
-        (dict(collector="batched"), "collector must be one of"),
+        (dict(collector="jax"), "collector must be one of"),
         (dict(workers=0), "workers"),
     ],
 )
