@@ -53,12 +53,14 @@ def _copy_sb3_into(policy: StackedPolicy, model: PPO, learner: int) -> None:
         "actor": ["mlp_extractor.policy_net.0", "mlp_extractor.policy_net.2", "action_net"],
         "critic": ["mlp_extractor.value_net.0", "mlp_extractor.value_net.2", "value_net"],
     }
+    L = policy.num_learners
     with torch.no_grad():
         for part, layers in names.items():
-            mlp = getattr(policy, part)
+            row = learner if part == "actor" else L + learner
             for i, name in enumerate(layers):
-                mlp.weights[i][learner] = sd[f"{name}.weight"].T
-                mlp.biases[i][learner, 0] = sd[f"{name}.bias"]
+                w = sd[f"{name}.weight"].T  # (in, out)
+                policy.net.weights[i][row, :, : w.shape[1]] = w
+                policy.net.biases[i][row, 0, : w.shape[1]] = sd[f"{name}.bias"]
 
 
 def _compare(policy: StackedPolicy, model: PPO, learner: int, atol: float) -> None:
@@ -85,13 +87,19 @@ def test_forward_and_init_match_sb3_architecture():
         np.testing.assert_allclose(
             policy.value(obs.expand(2, -1, -1))[1].numpy(), values.numpy(), atol=1e-6
         )
-    # SB3's init: orthogonal rows/cols scaled by the gain, zero biases
-    for mlp, head_gain in ((policy.actor, 0.01), (policy.critic, 1.0)):
-        for w, gain in zip(mlp.weights, [np.sqrt(2), np.sqrt(2), head_gain], strict=True):
-            m = w[0].detach().T  # (out, in) of learner 0 (our own init)
+    # SB3's init: orthogonal rows/cols scaled by the gain, zero biases (learner 0: our own init)
+    for row, head_gain, head_out in ((0, 0.01, 5), (2, 1.0, 1)):  # actor row 0, critic row L + 0
+        for i, gain in enumerate([np.sqrt(2), np.sqrt(2), head_gain]):
+            m = policy.net.weights[i][row].detach().T  # (out, in)
+            if i == 2:
+                assert float(m[head_out:].abs().sum()) == 0  # padded critic head
+                m = m[:head_out]
             gram = m @ m.T if m.shape[0] <= m.shape[1] else m.T @ m
             np.testing.assert_allclose(gram.numpy(), gain**2 * np.eye(gram.shape[0]), atol=1e-5)
-        assert all(float(b.detach().abs().max()) == 0 for b in mlp.biases)
+    assert all(
+        float(b.detach().abs().max()) == 0
+        for b in StackedPolicy(2, 2, 5, torch.Generator()).net.biases
+    )
 
 
 @pytest.mark.parametrize("n_epochs, batch_size", [(2, 50), (3, 64)])
