@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from lhf_hf import constants as C
 from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.histories.reader import HistoryDataset, load_histories
@@ -165,6 +166,10 @@ def torch_threads() -> int:
     return torch.get_num_threads()
 
 
+#: Collectors by name (``CollectConfig.collector``): each runs this rank's share of the tasks.
+RUNNERS = {"sb3": _run_sb3, "batched": _run_batched}
+
+
 def collect(
     config: CollectConfig,
     out: str | Path,
@@ -176,21 +181,23 @@ def collect(
     """Collect ``config`` into ``out`` and return the finished dataset."""
     out = Path(out)
     ranks = _Ranks()
+    complete = resume and is_complete(
+        out
+    )  # every rank decides the same way (no rank left at a barrier)
     if ranks.rank == 0:
-        if resume and is_complete(out):
-            prepare_output(out, config.identity(), resume=True)  # same config, or a clear error
-            return load_histories(out)
+        # a complete dataset is only re-opened: same config, or a clear error
         prepare_output(out, config.identity(), resume=resume, overwrite=overwrite)
     ranks.barrier()
+    if complete:
+        return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]
 
     tasks = list(config.tasks)
-    run = _run_batched if config.collector == "batched" else _run_sb3
-    run(config, out, tasks, ranks, progress)
+    RUNNERS[config.collector](config, out, tasks, ranks, progress)
     ranks.barrier()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]
     feature_names = (
-        {"observation.state": ["row", "col"], "next.observation.state": ["row", "col"]}
+        {C.OBS: ["row", "col"], C.NEXT_OBS: ["row", "col"]}
         if get_spec(config.env_id).family == "gridworld"
         else None
     )
