@@ -55,6 +55,41 @@ class _Ranks:
             self.state.wait_for_everyone()
 
 
+class _Progress:
+    """The progress bar of a collection: tasks done, transitions/s, ETA; a summary line at the end."""
+
+    def __init__(
+        self, config: CollectConfig, total: int, done: int, ranks: _Ranks, enabled: bool, label: str
+    ) -> None:
+        self.config, self.enabled, self.label = config, enabled, label
+        self.bar = tqdm(
+            total=total,
+            initial=done,
+            unit="task",
+            disable=not enabled,
+            desc=f"collect {config.env_id}" + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
+        )
+        self.tasks, self.frames, self.start = 0, 0, time.perf_counter()
+
+    def update(self, tasks: int) -> None:
+        self.tasks += tasks
+        self.frames += tasks * self.config.frames_per_task
+        self.bar.update(tasks)
+        self.bar.set_postfix_str(
+            f"{self.frames / (time.perf_counter() - self.start):,.0f} transitions/s"
+        )
+
+    def close(self) -> None:
+        self.bar.close()
+        if self.enabled and self.tasks:
+            secs = time.perf_counter() - self.start
+            print(
+                f"collected {self.tasks} tasks ({self.frames:,} transitions) in {secs:.1f} s: "
+                f"{self.frames / secs:,.0f} transitions/s ({self.label})",
+                file=sys.stderr,
+            )
+
+
 def lhf_metadata(config: CollectConfig) -> dict:
     spec = get_spec(config.env_id)
     extra = ["metaworld", "mujoco"] if spec.family == "metaworld" else []
@@ -76,25 +111,14 @@ def _run_sb3(
     mine = list(range(ranks.rank, len(tasks), ranks.world))
     todo = [p for p in mine if not task_done(out, p, config.frames_per_task)]
     config_dict = config.to_dict()
-    bar = tqdm(
-        total=len(mine),
-        initial=len(mine) - len(todo),
-        unit="task",
-        disable=not progress,
-        desc=f"collect {config.env_id}" + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
+    bar = _Progress(
+        config, len(mine), len(mine) - len(todo), ranks, progress, f"{config.workers} worker(s)"
     )
-    frames, start = 0, time.perf_counter()
-
-    def done(frames_task: int) -> None:
-        nonlocal frames
-        frames += frames_task
-        bar.update(1)
-        bar.set_postfix_str(f"{frames / (time.perf_counter() - start):,.0f} transitions/s")
-
     try:
         if config.workers == 1 or len(todo) <= 1:
             for p in todo:
-                done(collect_and_write_task(config_dict, tasks[p], p, str(out))[1])
+                collect_and_write_task(config_dict, tasks[p], p, str(out))
+                bar.update(1)
         else:
             # spawn: torch and MuJoCo are not fork-safe once initialised.
             with ProcessPoolExecutor(
@@ -107,16 +131,10 @@ def _run_sb3(
                 while pending:
                     finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for fut in finished:
-                        done(fut.result()[1])  # re-raises a worker's error; committed tasks stay
+                        fut.result()  # re-raises a worker's error; committed tasks stay
+                        bar.update(1)
     finally:
         bar.close()
-    if progress and todo:
-        secs = time.perf_counter() - start
-        print(
-            f"collected {len(todo)} tasks ({frames:,} transitions) in {secs:.1f} s: "
-            f"{frames / secs:,.0f} transitions/s with {config.workers} worker(s)",
-            file=sys.stderr,
-        )
 
 
 def _run_batched(
@@ -132,32 +150,22 @@ def _run_batched(
         c for c in mine if not all(task_done(out, p, config.frames_per_task) for p in chunks[c])
     ]
     n_mine = sum(len(chunks[c]) for c in mine)
-    bar = tqdm(
-        total=n_mine,
-        initial=n_mine - sum(len(chunks[c]) for c in todo),
-        unit="task",
-        disable=not progress,
-        desc=f"collect {config.env_id} (batched)"
-        + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
+    bar = _Progress(
+        config,
+        n_mine,
+        n_mine - sum(len(chunks[c]) for c in todo),
+        ranks,
+        progress,
+        f"batched, {torch_threads()} torch threads",
     )
-    frames, start = 0, time.perf_counter()
     try:
         for c in todo:
             histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c, progress=progress)
             for p, th in zip(chunks[c], histories, strict=True):
                 write_task(out, p, th, config.horizon)
-            frames += len(chunks[c]) * config.frames_per_task
             bar.update(len(chunks[c]))
-            bar.set_postfix_str(f"{frames / (time.perf_counter() - start):,.0f} transitions/s")
     finally:
         bar.close()
-    if progress and todo:
-        secs = time.perf_counter() - start
-        print(
-            f"collected {frames // config.frames_per_task} tasks ({frames:,} transitions) in {secs:.1f} s: "
-            f"{frames / secs:,.0f} transitions/s (batched, {torch_threads()} torch threads)",
-            file=sys.stderr,
-        )
 
 
 def torch_threads() -> int:

@@ -31,21 +31,7 @@ def apply_selection(ds, selection: Selection) -> datasets.Dataset:
     etc. repeat for repeated histories); ``materialize`` renumbers.
     """
     _check_source(ds, selection)
-    hist = ds.histories.data.table
-    start = dict(
-        zip(
-            hist.column(C.HISTORY_INDEX).to_pylist(),
-            hist.column(C.FROM_INDEX).to_pylist(),
-            strict=True,
-        )
-    )
-    stop = dict(
-        zip(
-            hist.column(C.HISTORY_INDEX).to_pylist(),
-            hist.column(C.TO_INDEX).to_pylist(),
-            strict=True,
-        )
-    )
+    start, stop = ds.by_history(C.FROM_INDEX), ds.by_history(C.TO_INDEX)
     frames = ds.frame_table()
     sel = selection.table
     pieces = []

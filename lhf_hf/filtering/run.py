@@ -34,14 +34,7 @@ def run_filter(
     start = time.perf_counter()
     selection = filter_histories(ds, config)
     seconds = time.perf_counter() - start
-    hist = ds.histories.data.table
-    returns = dict(
-        zip(
-            hist.column(C.HISTORY_INDEX).to_pylist(),
-            hist.column(C.RETURNS).to_pylist(),
-            strict=True,
-        )
-    )
+    returns = ds.by_history(C.RETURNS)
     summary = {**selection.summary(returns), "selection_seconds": round(seconds, 4)}
     selection.save(out, summary)
     label = (

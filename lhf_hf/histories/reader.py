@@ -131,6 +131,17 @@ class HistoryDataset:
     def tasks(self) -> datasets.Dataset:
         return _in_memory(pq.read_table(self.root / C.TASKS_PATH))
 
+    def by_history(self, column: str) -> dict:
+        """history_index -> the value of ``column`` in the histories table (e.g. ``returns``)."""
+        hist = self.histories.data.table
+        return dict(
+            zip(
+                hist.column(C.HISTORY_INDEX).to_pylist(),
+                hist.column(column).to_pylist(),
+                strict=True,
+            )
+        )
+
     def data_files(self) -> list[Path]:
         """Data files in frame order (task position order)."""
         n = int(self.info["total_tasks"])
