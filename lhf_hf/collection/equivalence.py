@@ -104,16 +104,16 @@ class Comparison:
         for i, c in enumerate(self.batched):
             ax.plot(x, c, color="tab:red", linewidth=1.2, label="batched" if i == 0 else None)
         lo, hi = self.band
-        xb = (np.arange(lo.size) + 0.5) * self.block + 0.5
-        ax.fill_between(
-            xb,
-            lo,
-            hi,
-            color="tab:blue",
-            alpha=0.15,
-            step="mid",
-            label=f"SB3 {self.level:.0%} prediction band (blocks)",
-        )
+        for i in range(lo.size):  # block i covers episodes i*block+1 .. (i+1)*block
+            ax.fill_between(
+                [i * self.block + 1, (i + 1) * self.block],
+                lo[i],
+                hi[i],
+                color="tab:blue",
+                alpha=0.15,
+                linewidth=0,
+                label=f"SB3 {self.level:.0%} prediction band (blocks)" if i == 0 else None,
+            )
         ax.set_xlabel("episode in history")
         ax.set_ylabel("mean return")
         ax.set_title(f"{self.env_id}: batched vs SB3 collector", fontsize=10)
