@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec, make_batched
@@ -64,8 +65,6 @@ def collect_chunk(
 
     obs = core.reset()  # (L*E, 2)
     episode_start = torch.ones(L, E, dtype=torch.bool)
-    from tqdm.auto import tqdm
-
     bar = tqdm(
         total=steps,
         desc=f"chunk {chunk} ({len(tasks)} tasks, {L * E} copies)",

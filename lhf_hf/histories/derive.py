@@ -49,9 +49,8 @@ def write_derived(
     def one(p: int) -> None:
         write_task(out, p, transform(tasks[p], source.task_histories(tasks[p])), horizon)
 
-    source.task_histories(
-        tasks[0]
-    ) if todo else None  # build the shared caches before the threads start
+    if todo:  # build the shared caches (histories rows) before the threads start
+        source.task_histories(tasks[todo[0]])
     # Threads: parquet reads/writes, hashing and numpy reductions release the GIL.
     with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
         for _ in tqdm(
