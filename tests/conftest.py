@@ -39,3 +39,17 @@ def collected(request):
     return request.getfixturevalue(
         "small_darkroom" if request.param == "sb3" else "small_darkroom_batched"
     )
+
+
+@pytest.fixture(scope="session")
+def learned_darkroom(tmp_path_factory):
+    """2 Darkroom tasks x 4 histories x 1,000 steps (batched PPO): the late actions are predictable,
+    so the action losses of AD / DICP can fall well below the uniform log 5."""
+    from lhf_hf.collection import collect
+    from lhf_hf.configs import CollectConfig
+
+    root = tmp_path_factory.mktemp("learned") / "darkroom"
+    cfg = CollectConfig(
+        env_id="darkroom", tasks="3,40", histories=4, steps=1000, collector="batched", seed=0
+    )
+    return collect(cfg, root, progress=False)

@@ -2,5 +2,6 @@
 
 from .collect import CollectConfig, PPOSettings, SACSettings
 from .filter import FilterConfig
+from .train import TrainConfig
 
-__all__ = ["CollectConfig", "FilterConfig", "PPOSettings", "SACSettings"]
+__all__ = ["CollectConfig", "FilterConfig", "PPOSettings", "SACSettings", "TrainConfig"]

@@ -110,6 +110,11 @@ def _make_gridworld(
     return GridworldEnv(variant, task, **kwargs)
 
 
+# Model context (transitions) and DICP planning depth of the reference code (DESIGN.md 6, 7).
+_CONTEXT_LENGTH = {"darkroom": 80}
+_PLAN_HORIZON = {"darkroom": 8}
+
+
 def _register(variant: GridworldVariant) -> None:
     num_train = round(variant.num_tasks * variant.train_ratio)  # reference: Python's round()
     register(
@@ -125,6 +130,8 @@ def _register(variant: GridworldVariant) -> None:
             factory=partial(_make_gridworld, variant),
             split=partial(shuffled_split, variant.num_tasks, num_train),
             optimal_returns=variant.optimal_returns,
+            context_length=_CONTEXT_LENGTH.get(variant.name, 200),
+            plan_horizon=_PLAN_HORIZON.get(variant.name, 16),
         )
     )
 

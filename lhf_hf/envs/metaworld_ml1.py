@@ -164,5 +164,6 @@ for _name in ML1_TASKS:
             split=_split,
             seeded_tasks=True,
             extra="metaworld",
+            context_length=1000,  # (ref) ten episodes of 100 steps
         )
     )

@@ -34,6 +34,10 @@ class EnvSpec:
         50 train and 50 test goals from the seed); gridworld tasks are global and only the split
         depends on the seed.
     extra: optional dependency group needed to build the env (``pip install 'lhf_hf[extra]'``).
+    context_length: default model context in transitions *(ref)*: darkroom 80, the other gridworlds
+        200, Meta-World 1000 (DESIGN.md 6).
+    plan_horizon: DICP beam-search depth *(ref)*: darkroom 8, the other gridworlds 16 (DESIGN.md 7;
+        Meta-World plans greedily one step ahead and ignores it).
     """
 
     env_id: str
@@ -49,6 +53,8 @@ class EnvSpec:
     optimal_returns: Callable[[], np.ndarray] | None = field(default=None, repr=False)
     seeded_tasks: bool = False
     extra: str | None = None
+    context_length: int = 200
+    plan_horizon: int = 16
 
     def __post_init__(self) -> None:
         if not self.env_id or self.env_id != self.env_id.strip().lower():
@@ -61,6 +67,11 @@ class EnvSpec:
             )
         if self.horizon < 1:
             raise ValueError(f"EnvSpec.horizon must be >= 1, got {self.horizon!r}")
+        if self.context_length < 1 or self.plan_horizon < 1:
+            raise ValueError(
+                f"EnvSpec.context_length and plan_horizon must be >= 1, got "
+                f"{self.context_length!r} and {self.plan_horizon!r}"
+            )
         if not 0 < self.num_train_tasks < self.num_tasks:
             raise ValueError(
                 f"EnvSpec.num_train_tasks must be in (0, num_tasks={self.num_tasks}), got {self.num_train_tasks!r}"

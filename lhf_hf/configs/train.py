@@ -1,0 +1,95 @@
+"""Configuration of ``lhf train`` (DESIGN.md 6; paper appendix "Transformer Models")."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+OBJECTIVES = ("ad", "dpt", "dicp")
+MODEL_PRESETS = ("paper", "lightweight", "tiny")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How to pretrain one ICRL model.  Stored as ``train_config.json`` beside the weights.
+
+    dataset: learning-history dataset folder (``lhf collect`` / ``lhf filter --materialize``).
+    objective: ``ad``, ``dpt`` or ``dicp`` (paper appendix "Backbone ICRL Algorithms").
+    out: output folder (checkpoints, final weights, card).
+    selection: optional LHF selection folder (``lhf filter``): histories are drawn with its counts.
+    preset: backbone size: ``paper`` (4/4/32/128), ``lightweight`` (2/2/16/64) or ``tiny`` (tests).
+    max_steps: optimiser steps (the reference: 50,000 at batch 512 on a GPU).
+    batch_size: windows per optimiser step over all processes (split evenly across them).
+    context_length: transitions per window; None = the env's default (darkroom 80, others 200).
+    label_positions: ``all`` (a label at every position) or ``query`` (last position only, as the
+        reference AD); None = ``all``.
+    lr: peak learning rate (paper 1e-2), cosine decay to 0 after ``warmup_steps`` of linear warm-up.
+    weight_decay / beta1 / beta2 / max_grad_norm: AdamW and clipping (paper: 0.01, 0.9, 0.99; 1).
+    dynamics_coef: xi, the DICP dynamics loss weight.
+    seed: seeds the model init, dropout and the window sampler (every process gets the same seed).
+    save_steps: checkpoint interval (resumable with ``resume``); logging_steps: loss log interval.
+    resume: continue from the last checkpoint in ``out``.
+    overwrite: start afresh in an ``out`` that already holds checkpoints or a model.
+    """
+
+    dataset: str
+    objective: str
+    out: str
+    selection: str | None = None
+    preset: str = "paper"
+    max_steps: int = 2000
+    batch_size: int = 64
+    context_length: int | None = None
+    label_positions: str | None = None
+    lr: float = 1e-2
+    warmup_steps: int = 0
+    weight_decay: float = 0.01
+    beta1: float = 0.9
+    beta2: float = 0.99
+    max_grad_norm: float = 1.0
+    dynamics_coef: float = 1.0
+    seed: int = 0
+    save_steps: int = 500
+    logging_steps: int = 50
+    resume: bool = False
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        def bad(field: str, why: str):
+            return ValueError(f"TrainConfig.{field} {why}, got {getattr(self, field)!r}")
+
+        if self.objective not in OBJECTIVES:
+            raise bad("objective", f"must be one of {OBJECTIVES}")
+        if self.preset not in MODEL_PRESETS:
+            raise bad("preset", f"must be one of {MODEL_PRESETS}")
+        for name in ("max_steps", "batch_size", "save_steps", "logging_steps"):
+            if getattr(self, name) < 1:
+                raise bad(name, "must be >= 1")
+        if self.context_length is not None and self.context_length < 1:
+            raise bad("context_length", "must be >= 1 (or None for the env's default)")
+        if self.label_positions not in (None, "all", "query"):
+            raise bad("label_positions", "must be 'all' or 'query'")
+        if self.objective == "dpt" and self.label_positions == "query":
+            raise bad("label_positions", "must be 'all' for DPT (its loss is over every prefix)")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise bad("lr", "must be > 0")
+        if self.warmup_steps < 0 or self.warmup_steps >= self.max_steps:
+            raise bad("warmup_steps", f"must be in [0, max_steps={self.max_steps})")
+        if self.weight_decay < 0 or self.max_grad_norm <= 0 or self.dynamics_coef < 0:
+            raise ValueError(
+                "TrainConfig.weight_decay and dynamics_coef must be >= 0 and max_grad_norm > 0, got "
+                f"{self.weight_decay!r}, {self.dynamics_coef!r}, {self.max_grad_norm!r}"
+            )
+        if self.resume and self.overwrite:
+            raise ValueError("TrainConfig: resume and overwrite exclude each other")
+        for name in ("beta1", "beta2"):
+            if not 0 <= getattr(self, name) < 1:
+                raise bad(name, "must be in [0, 1)")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        return cls(**d)

@@ -1,0 +1,14 @@
+"""ICRL models (AD, DPT, DICP) on ``transformers.LlamaModel``; registered with AutoConfig/AutoModel."""
+
+from .configuration_icrl import OBJECTIVES, PRESETS, ICRLConfig, icrl_config
+from .modeling_icrl import ICRLModel, ICRLOutput, ICRLPreTrainedModel
+
+__all__ = [
+    "OBJECTIVES",
+    "PRESETS",
+    "ICRLConfig",
+    "ICRLModel",
+    "ICRLOutput",
+    "ICRLPreTrainedModel",
+    "icrl_config",
+]

@@ -1,0 +1,145 @@
+"""``ICRLConfig``: one LlamaConfig-based configuration for AD, DPT and DICP (DESIGN.md 6).
+
+The backbone is ``transformers.LlamaModel`` fed through ``inputs_embeds``; this config adds what the
+ICRL model around it needs: the objective, the environment's state and action spaces, the context
+length in transitions, the label positions, the DICP dynamics weight xi and the planning settings.
+Paper sizes are in ``PRESETS`` (appendix "Transformer Models", Table "Key hyperparameters").
+"""
+
+from __future__ import annotations
+
+from huggingface_hub.dataclasses import strict
+from transformers import LlamaConfig
+
+OBJECTIVES = ("ad", "dpt", "dicp")
+LABEL_POSITIONS = ("all", "query")
+
+# Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,
+# dropout 0.1); "lightweight": appendix "ICRL with lightweight models" (2/2/16/64); "tiny": tests.
+PRESETS: dict[str, dict] = {
+    "paper": dict(
+        num_hidden_layers=4,
+        num_attention_heads=4,
+        hidden_size=32,
+        intermediate_size=128,
+        attention_dropout=0.1,
+        embedding_dropout=0.1,
+    ),
+    "lightweight": dict(
+        num_hidden_layers=2,
+        num_attention_heads=2,
+        hidden_size=16,
+        intermediate_size=64,
+        attention_dropout=0.1,
+        embedding_dropout=0.1,
+    ),
+    "tiny": dict(
+        num_hidden_layers=1,
+        num_attention_heads=2,
+        hidden_size=16,
+        intermediate_size=32,
+        attention_dropout=0.0,
+        embedding_dropout=0.0,
+    ),
+}
+
+
+@strict
+class ICRLConfig(LlamaConfig):
+    r"""Configuration of an in-context RL transformer (``model_type = "lhf_icrl"``).
+
+    All LlamaConfig fields apply to the backbone.  Added fields:
+
+    objective: ``ad`` (imitate the source action), ``dpt`` (predict the oracle's optimal action) or
+        ``dicp`` (AD plus reward / next-state / return-to-go heads, paper appendix "DICP").
+    env_id: the environment the model was trained for (checked again at evaluation).
+    state_dim: length of the state vector.
+    state_bins: 0 for real-valued states; otherwise every state coordinate is an integer in
+        ``[0, state_bins)`` (the gridworlds): it is one-hot encoded at the input and predicted by a
+        categorical head per coordinate (DICP).
+    action_dim: number of actions (discrete) or action dimensions (continuous).
+    discrete_actions: categorical action head when True, Gaussian head with learned log-std when False.
+    context_length: transitions the model sees (darkroom 80, other gridworlds 200, Meta-World 1000).
+    label_positions: ``all``: an action label at every position (each token carries the state the
+        next action is taken from); ``query``: only at the last position, as the reference AD does.
+        DPT always labels every position (its loss is over every prefix).
+    dynamics_coef: xi, the weight of the DICP dynamics losses.
+    return_scale: return-to-go targets are divided by this (the episode horizon), so that its squared
+        error is on the scale of the reward's.
+    embedding_dropout: dropout on the token embeddings; with ``attention_dropout`` this is the
+        paper's "attention dropout & dropout" (LlamaModel has no residual dropout of its own).
+    plan_beams / plan_horizon / plan_samples: DICP planning (beams and depth of the discrete beam
+        search; candidates of the continuous greedy search: the policy mean plus samples).
+    """
+
+    model_type = "lhf_icrl"
+
+    objective: str = "ad"
+    env_id: str | None = None
+    state_dim: int = 2
+    state_bins: int = 0
+    action_dim: int = 5
+    discrete_actions: bool = True
+    context_length: int = 80
+    label_positions: str = "all"
+    dynamics_coef: float = 1.0
+    return_scale: float = 1.0
+    embedding_dropout: float = 0.1
+    plan_beams: int = 10
+    plan_horizon: int = 8
+    plan_samples: int = 10
+
+    # LlamaConfig defaults that make no sense without a vocabulary.
+    vocab_size: int = 1
+    hidden_size: int = 32
+    intermediate_size: int = 128
+    num_hidden_layers: int = 4
+    num_attention_heads: int = 4
+    attention_dropout: int | float | None = 0.1
+    max_position_embeddings: int = 4096
+    bos_token_id: int | None = None
+    eos_token_id: int | list[int] | None = None
+    pad_token_id: int | None = None
+
+    def __post_init__(self, **kwargs):
+        def bad(field: str, why: str):
+            return ValueError(f"ICRLConfig.{field} {why}, got {getattr(self, field)!r}")
+
+        if self.objective not in OBJECTIVES:
+            raise bad("objective", f"must be one of {OBJECTIVES}")
+        if self.label_positions not in LABEL_POSITIONS:
+            raise bad("label_positions", f"must be one of {LABEL_POSITIONS}")
+        if self.objective == "dpt" and self.label_positions != "all":
+            raise bad("label_positions", "must be 'all' for DPT (its loss is over every prefix)")
+        for name in ("state_dim", "action_dim", "context_length", "plan_beams", "plan_horizon"):
+            if getattr(self, name) < 1:
+                raise bad(name, "must be >= 1")
+        if self.state_bins < 0 or self.state_bins == 1:
+            raise bad("state_bins", "must be 0 (real-valued states) or >= 2")
+        if self.discrete_actions and self.action_dim < 2:
+            raise bad("action_dim", "must be >= 2 for a discrete action space")
+        if self.dynamics_coef < 0:
+            raise bad("dynamics_coef", "must be >= 0")
+        if self.return_scale <= 0:
+            raise bad("return_scale", "must be > 0")
+        if not 0 <= self.embedding_dropout < 1:
+            raise bad("embedding_dropout", "must be in [0, 1)")
+        if self.plan_samples < 1:
+            raise bad("plan_samples", "must be >= 1")
+        super().__post_init__(**kwargs)
+
+    @property
+    def tokens_per_transition(self) -> int:
+        """DICP interleaves a query-action token after every transition token."""
+        return 2 if self.objective == "dicp" else 1
+
+    @property
+    def max_tokens(self) -> int:
+        return self.context_length * self.tokens_per_transition
+
+
+def icrl_config(preset: str = "paper", **fields) -> ICRLConfig:
+    """An ``ICRLConfig`` with the backbone sizes of ``preset`` and the given fields."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown model preset {preset!r}; choose one of {sorted(PRESETS)}")
+    return ICRLConfig(**{**PRESETS[preset], **fields})

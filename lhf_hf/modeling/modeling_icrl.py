@@ -1,0 +1,291 @@
+"""ICRL transformer for AD, DPT and DICP: token embedders and heads around ``LlamaModel`` (DESIGN.md 6).
+
+Token layout (one token per transition, state first).  Token ``j`` of a window embeds
+
+    [prev_state s_{j-1}, prev_action a_{j-1}, prev_reward r_{j-1}, prev_done d_{j-1}, has_prev, state s_j]
+
+where ``s_j`` is the state the next action is taken from: inside an episode ``s_j`` is the previous
+transition's next state; after an episode end it is the new episode's start state (the true final
+state stays a DICP target, never an input).  Every token is therefore a query for ``a_j``: AD labels
+the source action, DPT the oracle's optimal action, at every position (paper eq. "AD", "DPT": a sum
+over t of log M(a_t | C_{t-1}, s_t)) or, with ``label_positions="query"``, at the last one only (the
+reference AD).  ``has_prev`` is 0 only for the first token of a history (the empty context at test time).
+
+DICP interleaves a query-action token ``[s_j, a_j]`` after each transition token, so the sequence is
+``T_0, Q_0, T_1, Q_1, ...`` (2 tokens per transition).  The action head reads the ``T`` outputs; the
+reward, next-state and return-to-go heads read the ``Q`` outputs (paper eq. "DICP").  ``Q_j`` carries
+no outcome of ``a_j``, so no label leaks into its own input, and the planner (``lhf_hf.evaluation``)
+can extend a cached context with ``Q`` and imagined ``T`` tokens exactly as they appear in training.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from transformers import AutoConfig, AutoModel, LlamaModel
+from transformers.modeling_outputs import ModelOutput
+from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
+
+from .configuration_icrl import ICRLConfig
+
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # Gaussian head: keeps the NLL finite early in training
+
+
+@dataclass
+class ICRLOutput(ModelOutput):
+    """Output of ``ICRLModel.forward``. ``B`` batch, ``T`` transitions, ``A`` actions, ``S`` state dim.
+
+    loss: action loss + xi * dynamics loss (when labels were given).
+    action_loss / dynamics_loss: the two parts (dynamics: DICP only).
+    action_logits: (B, T, A) categorical logits (discrete actions).
+    action_mean / action_log_std: (B, T, A) Gaussian policy (continuous actions).
+    reward_pred: (B, T) predicted reward of (s_j, a_j) (DICP).
+    next_state_logits: (B, T, S, bins) per-coordinate logits of s'_j (DICP, integer states).
+    next_state_pred: (B, T, S) predicted s'_j (DICP, real-valued states).
+    return_pred: (B, T) predicted return-to-go from (s_j, a_j), in units of ``return_scale`` (DICP).
+    past_key_values: the backbone's cache when ``use_cache``.
+    """
+
+    loss: torch.FloatTensor | None = None
+    action_loss: torch.FloatTensor | None = None
+    dynamics_loss: torch.FloatTensor | None = None
+    action_logits: torch.FloatTensor | None = None
+    action_mean: torch.FloatTensor | None = None
+    action_log_std: torch.FloatTensor | None = None
+    reward_pred: torch.FloatTensor | None = None
+    next_state_logits: torch.FloatTensor | None = None
+    next_state_pred: torch.FloatTensor | None = None
+    return_pred: torch.FloatTensor | None = None
+    past_key_values: object | None = None
+
+
+class ICRLPreTrainedModel(LlamaPreTrainedModel):
+    config_class = ICRLConfig
+    base_model_prefix = "icrl"
+    # Trainer must not rescale our (already averaged) loss by the number of processes (DESIGN.md 6).
+    accepts_loss_kwargs = False
+
+
+class ICRLModel(ICRLPreTrainedModel):
+    """Embedders + ``LlamaModel`` + heads; ``forward`` returns an ``ICRLOutput`` with ``loss``."""
+
+    def __init__(self, config: ICRLConfig):
+        super().__init__(config)
+        self.backbone = LlamaModel(config)
+        # Tokens enter through inputs_embeds: the vocabulary embedding is never used, and an unused
+        # parameter would break DistributedDataParallel's gradient reduction.
+        self.backbone.embed_tokens = None
+        D = config.hidden_size
+        s_in = self.state_features
+        a_in = config.action_dim  # one-hot (discrete) or the action vector (continuous)
+        self.embed_transition = nn.Linear(s_in + a_in + 3 + s_in, D)
+        self.embed_dropout = nn.Dropout(config.embedding_dropout)
+        A = config.action_dim
+        self.action_head = nn.Linear(D, A if config.discrete_actions else 2 * A)
+        if config.objective == "dicp":
+            self.embed_query_action = nn.Linear(s_in + a_in, D)
+            self.reward_head = nn.Linear(D, 1)
+            self.return_head = nn.Linear(D, 1)
+            S, bins = config.state_dim, config.state_bins
+            self.next_state_head = nn.Linear(D, S * bins if bins else S)
+        self.post_init()
+
+    # ------------------------------------------------------------------ encoders
+    @property
+    def state_features(self) -> int:
+        c = self.config
+        return c.state_dim * c.state_bins if c.state_bins else c.state_dim
+
+    def encode_states(self, states: torch.Tensor) -> torch.Tensor:
+        """(..., S) -> (..., S * bins) one-hot per coordinate, or (..., S) float."""
+        bins = self.config.state_bins
+        if bins:
+            onehot = F.one_hot(states.long().clamp(0, bins - 1), bins)  # (..., S, bins)
+            return onehot.flatten(-2).to(self.dtype)  # (..., S * bins)
+        return states.to(self.dtype)
+
+    def encode_actions(self, actions: torch.Tensor) -> torch.Tensor:
+        """(...) action ids -> (..., A) one-hot, or (..., A) float actions as they are."""
+        if self.config.discrete_actions:
+            return F.one_hot(
+                actions.long().clamp(0, self.config.action_dim - 1), self.config.action_dim
+            ).to(self.dtype)
+        return actions.to(self.dtype)
+
+    # ------------------------------------------------------------------ pieces (used by planners too)
+    def embed_transitions(
+        self, states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
+    ) -> torch.Tensor:
+        """Transition tokens (B, T, D); see the module docstring for the layout."""
+        keep = has_prev.to(self.dtype).unsqueeze(-1)  # (B, T, 1): zero the missing previous step
+        feats = torch.cat(
+            [
+                self.encode_states(prev_states) * keep,  # (B, T, S')
+                self.encode_actions(prev_actions) * keep,  # (B, T, A)
+                prev_rewards.to(self.dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+                prev_dones.to(self.dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+                keep,  # (B, T, 1)
+                self.encode_states(states),  # (B, T, S')
+            ],
+            dim=-1,
+        )
+        return self.embed_transition(feats)  # (B, T, D)
+
+    def embed_query_actions(self, states, actions) -> torch.Tensor:
+        """DICP query-action tokens (B, T, D) from the state and the action taken in it."""
+        feats = torch.cat([self.encode_states(states), self.encode_actions(actions)], dim=-1)
+        return self.embed_query_action(feats)  # (B, T, D)
+
+    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
+        """LlamaModel over token embeddings (B, L, D) -> (hidden (B, L, D), cache)."""
+        out = self.backbone(
+            inputs_embeds=self.embed_dropout(inputs_embeds),
+            past_key_values=past_key_values,
+            position_ids=position_ids,
+            use_cache=use_cache,
+        )
+        return out.last_hidden_state, out.past_key_values
+
+    def action_distribution(self, hidden: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Policy head on transition-token outputs (B, T, D)."""
+        out = self.action_head(hidden)
+        if self.config.discrete_actions:
+            return {"action_logits": out}  # (B, T, A)
+        mean, log_std = out.chunk(2, dim=-1)  # (B, T, A) each
+        return {"action_mean": mean, "action_log_std": log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)}
+
+    def dynamics(self, hidden: torch.Tensor) -> dict[str, torch.Tensor]:
+        """DICP heads on query-action outputs (B, T, D)."""
+        c = self.config
+        out = {
+            "reward_pred": self.reward_head(hidden).squeeze(-1),  # (B, T)
+            "return_pred": self.return_head(hidden).squeeze(-1),  # (B, T)
+        }
+        ns = self.next_state_head(hidden)
+        if c.state_bins:
+            out["next_state_logits"] = ns.unflatten(
+                -1, (c.state_dim, c.state_bins)
+            )  # (B, T, S, bins)
+        else:
+            out["next_state_pred"] = ns  # (B, T, S)
+        return out
+
+    @staticmethod
+    def predicted_next_states(out: dict) -> torch.Tensor:
+        """Most likely next state (B, T, S) from ``dynamics`` output."""
+        if out.get("next_state_logits") is not None:
+            return out["next_state_logits"].argmax(-1)
+        return out["next_state_pred"]
+
+    # ------------------------------------------------------------------ forward
+    def forward(
+        self,
+        states: torch.Tensor,
+        prev_states: torch.Tensor,
+        prev_actions: torch.Tensor,
+        prev_rewards: torch.Tensor,
+        prev_dones: torch.Tensor,
+        has_prev: torch.Tensor,
+        actions: torch.Tensor | None = None,
+        action_labels: torch.Tensor | None = None,
+        label_mask: torch.Tensor | None = None,
+        reward_labels: torch.Tensor | None = None,
+        next_state_labels: torch.Tensor | None = None,
+        return_labels: torch.Tensor | None = None,
+        past_key_values=None,
+        position_ids: torch.Tensor | None = None,
+        use_cache: bool | None = None,
+        **kwargs,
+    ) -> ICRLOutput:
+        r"""Run a window of ``T`` transitions.
+
+        states: (B, T, S) the state each token's action is taken from (long for integer states).
+        prev_states, prev_actions, prev_rewards, prev_dones: (B, T, S), (B, T) or (B, T, A), (B, T),
+            (B, T): the transition that led to ``states``; ignored where ``has_prev`` (B, T) is False.
+        actions: (B, T) or (B, T, A) the action taken in ``states``: the input of DICP's query-action
+            tokens (required for DICP).
+        action_labels: (B, T) action ids or (B, T, A) actions to predict (AD: the source's, DPT: the
+            oracle's); label_mask: (B, T) bool, the positions that carry a label (default: all).
+        reward_labels (B, T), next_state_labels (B, T, S), return_labels (B, T): DICP targets
+            (return-to-go in environment units; scaled by ``config.return_scale`` here).
+        """
+        c = self.config
+        B, T = states.shape[:2]
+        tokens = self.embed_transitions(
+            states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
+        )  # (B, T, D)
+        dicp = c.objective == "dicp"
+        if dicp:
+            if actions is None:
+                raise ValueError("DICP's forward needs `actions` (the query-action tokens' input)")
+            qa = self.embed_query_actions(states, actions)  # (B, T, D)
+            tokens = torch.stack([tokens, qa], dim=2).flatten(1, 2)  # (B, T, 2, D) -> (B, 2T, D)
+        hidden, cache = self.run_backbone(tokens, past_key_values, position_ids, use_cache)
+        if dicp:
+            hidden = hidden.unflatten(1, (T, 2))  # (B, 2T, D) -> (B, T, 2, D)
+            policy_hidden, query_hidden = hidden[:, :, 0], hidden[:, :, 1]  # (B, T, D) each
+        else:
+            policy_hidden, query_hidden = hidden, None
+        out = self.action_distribution(policy_hidden)
+        if dicp:
+            out.update(self.dynamics(query_hidden))
+
+        loss = action_loss = dynamics_loss = None
+        if action_labels is not None:
+            mask = (
+                torch.ones(B, T, dtype=torch.bool, device=states.device)
+                if label_mask is None
+                else label_mask.bool()
+            )
+            action_loss = self._action_loss(out, action_labels, mask)
+            loss = action_loss
+            if dicp and reward_labels is not None:
+                dynamics_loss = self._dynamics_loss(
+                    out, reward_labels, next_state_labels, return_labels, mask
+                )
+                loss = action_loss + c.dynamics_coef * dynamics_loss
+        return ICRLOutput(
+            loss=loss,
+            action_loss=action_loss,
+            dynamics_loss=dynamics_loss,
+            past_key_values=cache if use_cache else None,
+            **out,
+        )
+
+    # ------------------------------------------------------------------ losses
+    def _action_loss(self, out, labels, mask) -> torch.Tensor:
+        """Mean negative log-likelihood of the labelled actions."""
+        if self.config.discrete_actions:
+            logits = out["action_logits"][mask]  # (N, A)
+            return F.cross_entropy(logits.float(), labels[mask].long())
+        mean, log_std = out["action_mean"][mask], out["action_log_std"][mask]  # (N, A)
+        z = (labels[mask].to(mean.dtype) - mean) * torch.exp(-log_std)
+        nll = 0.5 * z.pow(2) + log_std + 0.5 * math.log(2 * math.pi)  # (N, A)
+        return nll.sum(-1).mean()
+
+    def _dynamics_loss(self, out, rewards, next_states, returns, mask) -> torch.Tensor:
+        """Reward MSE + next-state loss (cross-entropy per integer coordinate, else MSE) + return MSE.
+
+        Squared error is the Gaussian log-likelihood of W_theta in the paper's DICP objective up to
+        constants; integer grid coordinates get a categorical likelihood so the planner can imagine
+        exact grid states.
+        """
+        c = self.config
+        reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self.dtype))
+        return_loss = F.mse_loss(
+            out["return_pred"][mask], returns[mask].to(self.dtype) / c.return_scale
+        )
+        if c.state_bins:
+            logits = out["next_state_logits"][mask]  # (N, S, bins)
+            state_loss = F.cross_entropy(logits.flatten(0, 1), next_states[mask].long().flatten())
+        else:
+            state_loss = F.mse_loss(out["next_state_pred"][mask], next_states[mask].to(self.dtype))
+        return reward_loss + state_loss + return_loss
+
+
+AutoConfig.register(ICRLConfig.model_type, ICRLConfig, exist_ok=True)
+AutoModel.register(ICRLConfig, ICRLModel, exist_ok=True)

@@ -1,0 +1,97 @@
+"""Model card (README.md from ``dataset_cards/model_card.md``) and the loss plot of a checkpoint."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from lhf_hf.histories.card import template_path
+from lhf_hf.histories.io import save_figure_atomic, write_text_atomic
+
+OBJECTIVE_NAMES = {
+    "ad": "Algorithm Distillation (AD)",
+    "dpt": "Decision-Pretrained Transformer (DPT)",
+    "dicp": "Distillation for In-Context Planning (DICP)",
+}
+NO_EVAL = "Not evaluated yet: run `lhf evaluate --model <this folder> --env <env>`."
+
+
+def plot_loss(log_history: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in log_history if "loss" in r]
+    fig, ax = plt.subplots(figsize=(6, 3.4), dpi=120)
+    if rows:
+        ax.plot([r["step"] for r in rows], [r["loss"] for r in rows], label="loss")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("optimiser step")
+    ax.set_ylabel("training loss")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    save_figure_atomic(fig, path)
+
+
+def render_model_card(config, provenance: dict, load_path: str, eval_section: str = NO_EVAL) -> str:
+    from huggingface_hub import ModelCard, ModelCardData
+
+    train = provenance["train"]
+    ds = provenance["dataset"]
+    sel = provenance.get("selection")
+    params = provenance.get("parameters")
+    card_data = ModelCardData(
+        library_name="transformers",
+        license="apache-2.0",
+        tags=["lhf_hf", "in-context-rl", "reinforcement-learning", config.objective, ds["env_id"]],
+        pipeline_tag="reinforcement-learning",
+    )
+    model_name = f"{config.objective.upper()} on {ds['env_id']}" + (" with LHF" if sel else "")
+    return ModelCard.from_template(
+        card_data,
+        template_path=str(template_path("model_card.md")),
+        model_name=model_name,
+        objective_name=OBJECTIVE_NAMES[config.objective],
+        objective=config.objective,
+        env_id=ds["env_id"],
+        selection_phrase=" resampled by an LHF selection" if sel else "",
+        layers=config.num_hidden_layers,
+        heads=config.num_attention_heads,
+        hidden=config.hidden_size,
+        intermediate=config.intermediate_size,
+        params=f"{params:,}" if params else "?",
+        context_length=config.context_length,
+        tokens=config.max_tokens,
+        load_path=load_path,
+        label_positions=config.label_positions,
+        xi_phrase=f", xi = {config.dynamics_coef}" if config.objective == "dicp" else "",
+        dataset_path=ds["path"],
+        dataset_fingerprint=ds["fingerprint"][:16],
+        selection_text=(
+            f"`{sel['path']}` ({sel['filter']['strategy']}, lambda {sel['filter']['lam']}; "
+            f"{sel['selected_unique']} histories kept)"
+            if sel
+            else "none (every history once)"
+        ),
+        max_steps=train["max_steps"],
+        batch_size=train["batch_size"],
+        world_size=provenance.get("world_size", 1),
+        beta1=train["beta1"],
+        beta2=train["beta2"],
+        lr=train["lr"],
+        weight_decay=train["weight_decay"],
+        max_grad_norm=train["max_grad_norm"],
+        seed=train["seed"],
+        final_loss=(
+            f"{provenance['final_loss']:.4f}" if provenance.get("final_loss") is not None else "-"
+        ),
+        runtime=provenance.get("train_runtime_s", "-"),
+        versions=", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()),
+        eval_section=eval_section,
+    ).content
+
+
+def write_model_card(out: Path, config, provenance: dict) -> Path:
+    text = render_model_card(config, provenance, load_path=str(Path(out).resolve()))
+    write_text_atomic(text, Path(out) / "README.md")
+    return Path(out) / "README.md"

@@ -1,0 +1,280 @@
+"""``train(cfg)``: pretrain an AD / DPT / DICP model with ``transformers.Trainer`` (DESIGN.md 6).
+
+Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the committed
+``training/accelerate/cpu_2proc.yaml``): the global batch is split across processes and the model's
+``accepts_loss_kwargs = False`` keeps the logged loss on the same scale as one process.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from transformers import Trainer, TrainerCallback, TrainingArguments, set_seed
+from transformers.trainer_utils import get_last_checkpoint
+
+from lhf_hf import constants as C
+from lhf_hf.configs.train import TrainConfig
+from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
+
+from .collators import make_collator
+from .windows import HistoryArrays, WindowDataset, load_arrays
+
+TRAIN_CONFIG_FILE = "train_config.json"
+LOG_FILE = "training_log.json"
+LOSS_PLOT = "training_loss.png"
+# Draws per sampler pass: sampling with replacement keeps the sampler's memory bounded on datasets
+# with hundreds of millions of windows (a permutation of all of them would not fit).
+MAX_SAMPLER_DRAWS = 1 << 24
+
+
+class WindowTrainer(Trainer):
+    """Trainer that draws windows uniformly with replacement (every history copy equally often)."""
+
+    def _get_train_sampler(self, train_dataset=None):
+        ds = train_dataset if train_dataset is not None else self.train_dataset
+        return torch.utils.data.RandomSampler(
+            ds, replacement=True, num_samples=min(len(ds), MAX_SAMPLER_DRAWS)
+        )
+
+
+class _Throughput(TrainerCallback):
+    """Logs windows/s and tokens/s beside the loss."""
+
+    def __init__(self, tokens_per_step: int):
+        self.tokens_per_step = tokens_per_step
+        self.t0 = None
+        self.step0 = 0
+
+    def on_train_begin(self, args, state, control, **kwargs):
+        self.t0, self.step0 = time.perf_counter(), state.global_step
+
+    def on_log(self, args, state, control, logs=None, **kwargs):
+        if logs is not None and self.t0 is not None and state.global_step > self.step0:
+            dt = time.perf_counter() - self.t0
+            logs["tokens_per_s"] = round(
+                self.tokens_per_step * (state.global_step - self.step0) / dt, 1
+            )
+
+
+# ---------------------------------------------------------------------------- model config
+def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
+    """The ICRLConfig that ``cfg`` trains on env ``spec`` (spaces, context, planning from the env)."""
+    if cfg.objective == "dpt":
+        if spec.family != "gridworld" or not has_optimal:
+            raise ValueError(
+                f"DPT needs the oracle's optimal action of every state (column {C.OPTIMAL_ACTION}); "
+                f"the {spec.env_id} dataset has none (the paper runs DPT on the gridworlds only)"
+            )
+    state_space, action_space = spec.state_space, spec.action_space
+    integer_states = np.issubdtype(state_space.dtype, np.integer)
+    discrete = isinstance(action_space, gym.spaces.Discrete)
+    return icrl_config(
+        cfg.preset,
+        objective=cfg.objective,
+        env_id=spec.env_id,
+        state_dim=int(np.prod(state_space.shape)),
+        state_bins=int(state_space.high.max()) + 1 if integer_states else 0,
+        action_dim=int(action_space.n) if discrete else int(np.prod(action_space.shape)),
+        discrete_actions=discrete,
+        context_length=cfg.context_length or spec.context_length,
+        label_positions=cfg.label_positions or "all",
+        dynamics_coef=cfg.dynamics_coef,
+        return_scale=float(spec.horizon),
+        plan_horizon=spec.plan_horizon,
+    )
+
+
+def check_model_env(config: ICRLConfig, spec) -> None:
+    """Raise when a model's spaces do not match an env's (a discrete head on a continuous env...)."""
+    discrete = isinstance(spec.action_space, gym.spaces.Discrete)
+    if config.discrete_actions != discrete:
+        kind = "discrete" if config.discrete_actions else "continuous"
+        raise ValueError(
+            f"the model has a {kind} action head but {spec.env_id} has a "
+            f"{'discrete' if discrete else 'continuous'} action space {spec.action_space}"
+        )
+    n = int(spec.action_space.n) if discrete else int(np.prod(spec.action_space.shape))
+    s = int(np.prod(spec.state_space.shape))
+    if config.action_dim != n or config.state_dim != s:
+        raise ValueError(
+            f"the model expects {config.state_dim}-dim states and {config.action_dim} actions, "
+            f"{spec.env_id} has {s} and {n}"
+        )
+
+
+# ---------------------------------------------------------------------------- selection
+def file_fingerprint(*paths: Path) -> str:
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(Path(p).read_bytes())
+    return h.hexdigest()
+
+
+def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.ndarray, dict]:
+    """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
+    from lhf_hf.filtering.select import SCORES_FILE, load_selection
+
+    sel = load_selection(selection_dir)
+    fp = sel.source.get("fingerprint")
+    if fp != ds.fingerprint:
+        raise ValueError(
+            f"the selection {selection_dir} was computed on a dataset with fingerprint {str(fp)[:16]}, "
+            f"not on {ds.root} (fingerprint {ds.fingerprint[:16]}): filter this dataset again"
+        )
+    counts = sel.counts()
+    unknown = set(counts) - set(arrays.history_index.tolist())
+    if unknown:
+        raise ValueError(f"the selection names {len(unknown)} histories that {ds.root} lacks")
+    out = np.array([counts.get(int(h), 0) for h in arrays.history_index], np.int64)
+    info = {
+        "path": str(Path(selection_dir).resolve()),
+        "fingerprint": file_fingerprint(Path(selection_dir) / SCORES_FILE),
+        "filter": sel.config.to_dict(),
+        "selected_unique": int((out > 0).sum()),
+        "total_count": int(out.sum()),
+    }
+    return out, info
+
+
+# ---------------------------------------------------------------------------- train
+def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
+    """Everything ``train`` runs, without running it: (trainer, provenance dict)."""
+    from lhf_hf.envs import get_spec
+    from lhf_hf.histories import load_histories
+
+    ds = load_histories(cfg.dataset)
+    spec = get_spec(ds.env_id)
+    has_optimal = C.OPTIMAL_ACTION in ds.info.get("features", {})
+    config = model_config or model_config_for(spec, cfg, has_optimal)
+    check_model_env(config, spec)
+    if config.objective != cfg.objective:
+        raise ValueError(
+            f"model objective {config.objective!r} != train objective {cfg.objective!r}"
+        )
+    arrays = load_arrays(
+        ds, integer_states=config.state_bins > 0, discrete_actions=config.discrete_actions
+    )
+    counts, selection = None, None
+    if cfg.selection:
+        counts, selection = selection_counts(cfg.selection, ds, arrays)
+    windows = WindowDataset(arrays, config.context_length, counts)
+    collator = make_collator(arrays, config)
+
+    # The launcher's WORLD_SIZE, read before TrainingArguments sets up the process group (a bare
+    # PartialState() here would initialise accelerate's shared state as non-distributed on CPU).
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if cfg.batch_size % world:
+        raise ValueError(f"--batch-size {cfg.batch_size} is not divisible by the {world} processes")
+    set_seed(cfg.seed)
+    model = ICRLModel(config)
+    args = TrainingArguments(
+        output_dir=cfg.out,
+        max_steps=cfg.max_steps,
+        per_device_train_batch_size=cfg.batch_size // world,
+        learning_rate=cfg.lr,
+        lr_scheduler_type="cosine",
+        warmup_steps=cfg.warmup_steps,
+        weight_decay=cfg.weight_decay,
+        adam_beta1=cfg.beta1,
+        adam_beta2=cfg.beta2,
+        max_grad_norm=cfg.max_grad_norm,
+        logging_steps=cfg.logging_steps,
+        save_steps=cfg.save_steps,
+        save_total_limit=2,
+        seed=cfg.seed,
+        report_to="none",
+        remove_unused_columns=False,
+        dataloader_num_workers=0,
+        ddp_find_unused_parameters=False,
+        use_cpu=not torch.cuda.is_available(),
+    )
+    if args.world_size != world:
+        raise RuntimeError(f"expected {world} processes, accelerate set up {args.world_size}")
+    trainer = WindowTrainer(
+        model=model,
+        args=args,
+        train_dataset=windows,
+        data_collator=collator,
+        callbacks=[_Throughput(cfg.batch_size * config.max_tokens)],
+    )
+    provenance = {
+        "train": cfg.to_dict(),
+        "dataset": {
+            "path": str(Path(cfg.dataset).resolve()),
+            "env_id": ds.env_id,
+            "fingerprint": ds.fingerprint,
+            "total_histories": int(arrays.num_histories),
+            "total_frames": int(len(arrays.rewards)),
+        },
+        "selection": selection,
+        "windows": len(windows),
+        "world_size": world,
+        "per_device_batch_size": cfg.batch_size // world,
+    }
+    return trainer, provenance
+
+
+def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
+    """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
+    from lhf_hf.histories.io import write_json_atomic
+    from lhf_hf.histories.writer import library_versions
+
+    out = Path(cfg.out)
+    resume = None
+    last = get_last_checkpoint(str(out)) if out.is_dir() else None
+    if cfg.resume:
+        if last is None:
+            raise FileNotFoundError(f"--resume: no checkpoint-* folder in {out} to resume from")
+        resume = last
+    elif cfg.overwrite and out.is_dir():
+        shutil.rmtree(out)
+    elif last is not None or (out / "config.json").exists():
+        raise FileExistsError(
+            f"{out} already holds a model or checkpoints: pass --resume to continue or --overwrite "
+            "to start afresh"
+        )
+    trainer, provenance = build_trainer(cfg, model_config)
+    t0 = time.perf_counter()
+    result = trainer.train(resume_from_checkpoint=resume)
+    wall = time.perf_counter() - t0
+    if not trainer.is_world_process_zero():
+        return out
+    trainer.save_model(str(out))
+    history = [r for r in trainer.state.log_history if "loss" in r]
+    provenance.update(
+        {
+            "seed": cfg.seed,
+            "versions": library_versions(["transformers", "accelerate", "safetensors"]),
+            "resumed_from": resume,
+            "global_step": trainer.state.global_step,
+            "train_runtime_s": round(wall, 2),
+            "final_loss": history[-1]["loss"] if history else None,
+            "parameters": int(sum(p.numel() for p in trainer.model.parameters())),
+            "metrics": result.metrics,
+            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+    )
+    write_json_atomic(provenance, out / TRAIN_CONFIG_FILE)
+    write_json_atomic(trainer.state.log_history, out / LOG_FILE)
+    from .card import plot_loss, write_model_card
+
+    plot_loss(trainer.state.log_history, out / LOSS_PLOT)
+    write_model_card(out, trainer.model.config, provenance)
+    return out
+
+
+def load_train_config(checkpoint: str | Path) -> dict:
+    path = Path(checkpoint) / TRAIN_CONFIG_FILE
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{checkpoint} has no {TRAIN_CONFIG_FILE} (not made by `lhf train`)"
+        )
+    return json.loads(path.read_text())

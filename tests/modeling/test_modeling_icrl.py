@@ -1,0 +1,257 @@
+"""ICRL model: causality, no label leakage, losses against reference formulas, cache, save/load."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from transformers import AutoConfig, AutoModel
+
+from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
+
+B, T = 2, 12
+
+
+def grid_config(objective="ad", **kw):
+    return icrl_config(
+        "tiny", objective=objective, state_dim=2, state_bins=9, action_dim=5, context_length=T, **kw
+    )
+
+
+def cont_config(objective="ad", **kw):
+    return icrl_config(
+        "tiny",
+        objective=objective,
+        state_dim=3,
+        state_bins=0,
+        action_dim=2,
+        discrete_actions=False,
+        context_length=T,
+        **kw,
+    )
+
+
+def make_batch(config: ICRLConfig, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    S, A = config.state_dim, config.action_dim
+    if config.state_bins:
+        states = torch.randint(0, config.state_bins, (B, T, S), generator=g)
+        prev_states = torch.randint(0, config.state_bins, (B, T, S), generator=g)
+    else:
+        states, prev_states = torch.randn(B, T, S, generator=g), torch.randn(B, T, S, generator=g)
+    if config.discrete_actions:
+        actions = torch.randint(0, A, (B, T), generator=g)
+        prev_actions = torch.randint(0, A, (B, T), generator=g)
+    else:
+        actions, prev_actions = (
+            torch.rand(B, T, A, generator=g) * 2 - 1,
+            torch.rand(B, T, A, generator=g) * 2 - 1,
+        )
+    has_prev = torch.ones(B, T, dtype=torch.bool)
+    has_prev[0, 0] = False
+    batch = dict(
+        states=states,
+        prev_states=prev_states,
+        prev_actions=prev_actions,
+        prev_rewards=torch.rand(B, T, generator=g),
+        prev_dones=torch.rand(B, T, generator=g) < 0.2,
+        has_prev=has_prev,
+    )
+    if config.objective == "dicp":
+        batch["actions"] = actions
+    return batch, actions
+
+
+def model_for(config, seed=0):
+    torch.manual_seed(seed)
+    return ICRLModel(config).eval()
+
+
+def outputs(model, batch):
+    with torch.no_grad():
+        out = model(**batch)
+    keys = (
+        "action_logits",
+        "action_mean",
+        "reward_pred",
+        "next_state_logits",
+        "next_state_pred",
+        "return_pred",
+    )
+    return {k: out[k] for k in keys if out.get(k) is not None}
+
+
+@pytest.mark.parametrize(
+    "make, objective",
+    [
+        (grid_config, "ad"),
+        (grid_config, "dpt"),
+        (grid_config, "dicp"),
+        (cont_config, "ad"),
+        (cont_config, "dicp"),
+    ],
+)
+def test_causal_later_tokens_do_not_change_earlier_outputs(make, objective):
+    config = make(objective)
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    base = outputs(model, batch)
+    j = 7
+    changed, _ = make_batch(config, seed=1)
+    batch2 = {k: v.clone() for k, v in batch.items()}
+    for k, v in changed.items():  # replace every input from position j on
+        batch2[k][:, j:] = v[:, j:]
+    new = outputs(model, batch2)
+    for k in base:
+        torch.testing.assert_close(new[k][:, :j], base[k][:, :j], msg=k)
+        assert not torch.allclose(new[k][:, j:], base[k][:, j:]), k
+
+
+def test_dicp_policy_does_not_see_its_own_action():
+    """The action logits at j come from T_j, which precedes the query-action token Q_j = [s_j, a_j]."""
+    config = grid_config("dicp")
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    base = outputs(model, batch)
+    batch["actions"] = (batch["actions"] + 1) % 5
+    new = outputs(model, batch)
+    torch.testing.assert_close(new["action_logits"][:, 0], base["action_logits"][:, 0])
+    # position 0's dynamics heads read Q_0, which holds a_0: they must change
+    assert not torch.allclose(new["reward_pred"][:, 0], base["reward_pred"][:, 0])
+
+
+def test_missing_previous_step_is_ignored():
+    config = grid_config()
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    base = outputs(model, batch)
+    batch["prev_states"][0, 0] += 3  # has_prev[0, 0] is False: must not matter
+    batch["prev_actions"][0, 0] = (batch["prev_actions"][0, 0] + 1) % 5
+    batch["prev_rewards"][0, 0] = 7.0
+    torch.testing.assert_close(outputs(model, batch)["action_logits"], base["action_logits"])
+
+
+def test_discrete_action_loss_is_masked_cross_entropy():
+    config = grid_config()
+    model = model_for(config)
+    batch, actions = make_batch(config)
+    mask = torch.zeros(B, T, dtype=torch.bool)
+    mask[:, -1] = True
+    mask[1, 3] = True
+    out = model(**batch, action_labels=actions, label_mask=mask)
+    logp = torch.log_softmax(out.action_logits, -1)
+    picked = logp.gather(-1, actions.unsqueeze(-1)).squeeze(-1)  # (B, T)
+    torch.testing.assert_close(out.loss, -picked[mask].mean())
+
+
+def test_gaussian_action_loss_matches_torch_normal():
+    config = cont_config()
+    model = model_for(config)
+    batch, actions = make_batch(config)
+    out = model(**batch, action_labels=actions)
+    normal = torch.distributions.Normal(out.action_mean, out.action_log_std.exp())
+    torch.testing.assert_close(out.loss, -normal.log_prob(actions).sum(-1).mean())
+
+
+@pytest.mark.parametrize("make", [grid_config, cont_config])
+def test_dicp_loss_is_action_plus_xi_times_dynamics(make):
+    config = make("dicp", dynamics_coef=0.5, return_scale=20.0)
+    model = model_for(config)
+    batch, actions = make_batch(config)
+    g = torch.Generator().manual_seed(3)
+    rewards = torch.rand(B, T, generator=g)
+    returns = torch.rand(B, T, generator=g) * 20
+    if config.state_bins:
+        nxt = torch.randint(0, 9, (B, T, 2), generator=g)
+    else:
+        nxt = torch.randn(B, T, 3, generator=g)
+    out = model(
+        **batch,
+        action_labels=actions,
+        reward_labels=rewards,
+        next_state_labels=nxt,
+        return_labels=returns,
+    )
+    reward_mse = ((out.reward_pred - rewards) ** 2).mean()
+    return_mse = ((out.return_pred - returns / 20.0) ** 2).mean()
+    if config.state_bins:
+        logp = torch.log_softmax(out.next_state_logits, -1)  # (B, T, S, bins)
+        state = -logp.gather(-1, nxt.unsqueeze(-1)).mean()
+    else:
+        state = ((out.next_state_pred - nxt) ** 2).mean()
+    torch.testing.assert_close(out.dynamics_loss, reward_mse + state + return_mse)
+    torch.testing.assert_close(out.loss, out.action_loss + 0.5 * out.dynamics_loss)
+
+
+def test_incremental_cache_equals_full_forward():
+    """Running a window in two chunks with the KV cache gives the full forward's outputs."""
+    config = grid_config()
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    full = outputs(model, batch)["action_logits"]
+    first = {k: v[:, :5] for k, v in batch.items()}
+    rest = {k: v[:, 5:] for k, v in batch.items()}
+    with torch.no_grad():
+        a = model(**first, use_cache=True)
+        b = model(**rest, past_key_values=a.past_key_values, use_cache=True)
+    torch.testing.assert_close(torch.cat([a.action_logits, b.action_logits], 1), full)
+
+
+def test_save_load_identical_outputs(tmp_path):
+    config = grid_config("dicp")
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    model.save_pretrained(tmp_path / "m")
+    assert (tmp_path / "m" / "model.safetensors").exists()
+    loaded = AutoModel.from_pretrained(tmp_path / "m").eval()
+    assert isinstance(loaded, ICRLModel) and loaded.config.objective == "dicp"
+    for k, v in outputs(model, batch).items():
+        torch.testing.assert_close(outputs(loaded, batch)[k], v, rtol=0, atol=0)
+    assert isinstance(AutoConfig.for_model("lhf_icrl"), ICRLConfig)
+
+
+def test_presets_have_paper_sizes():
+    c = icrl_config("paper")
+    assert (c.num_hidden_layers, c.num_attention_heads, c.hidden_size, c.intermediate_size) == (
+        4,
+        4,
+        32,
+        128,
+    )
+    assert c.attention_dropout == c.embedding_dropout == 0.1
+    c = icrl_config("lightweight")
+    assert (c.num_hidden_layers, c.num_attention_heads, c.hidden_size, c.intermediate_size) == (
+        2,
+        2,
+        16,
+        64,
+    )
+    assert icrl_config("paper", objective="dicp").max_tokens == 2 * 80
+    assert math.isclose(icrl_config("paper").rope_parameters["rope_theta"], 10000.0)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(objective="ppo"), "objective"),
+        (dict(label_positions="some"), "label_positions"),
+        (dict(objective="dpt", label_positions="query"), "every prefix"),
+        (dict(state_bins=1), "state_bins"),
+        (dict(context_length=0), "context_length"),
+        (dict(dynamics_coef=-1.0), "dynamics_coef"),
+    ],
+)
+def test_config_rejects_bad_values(kw, match):
+    with pytest.raises(ValueError, match=match):
+        ICRLConfig(**kw)
+    with pytest.raises(ValueError, match="unknown model preset"):
+        icrl_config("huge")
+
+
+def test_dicp_forward_needs_actions():
+    config = grid_config("dicp")
+    batch, _ = make_batch(config)
+    batch.pop("actions")
+    with pytest.raises(ValueError, match="actions"):
+        model_for(config)(**batch)

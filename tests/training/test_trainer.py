@@ -1,0 +1,257 @@
+"""``train``: the three objectives learn, provenance and cards, selections, resume, bad input, CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+from transformers import AutoModel
+
+from lhf_hf.cli.main import main
+from lhf_hf.configs import FilterConfig, TrainConfig
+from lhf_hf.envs import get_spec
+from lhf_hf.filtering.select import filter_histories
+from lhf_hf.modeling import ICRLModel, icrl_config
+from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
+
+REPO = Path(__file__).resolve().parents[2]
+TINY = dict(
+    preset="tiny", batch_size=8, context_length=40, lr=3e-3, logging_steps=10, save_steps=1000
+)
+
+
+def losses(out: Path) -> list[float]:
+    return [r["loss"] for r in json.loads((out / "training_log.json").read_text()) if "loss" in r]
+
+
+@pytest.mark.parametrize("objective", ["ad", "dpt", "dicp"])
+def test_each_objective_learns_and_saves_a_loadable_checkpoint(
+    learned_darkroom, tmp_path, objective
+):
+    out = train(
+        TrainConfig(
+            dataset=str(learned_darkroom.root),
+            objective=objective,
+            out=str(tmp_path / "m"),
+            max_steps=80,
+            **TINY,
+        )
+    )
+    loss = losses(out)
+    assert len(loss) == 8 and np.mean(loss[-2:]) < 0.9 * np.mean(loss[:2]), loss
+    model = AutoModel.from_pretrained(out)
+    assert isinstance(model, ICRLModel) and model.config.objective == objective
+    assert model.config.env_id == "darkroom" and model.config.return_scale == 20.0
+    prov = json.loads((out / "train_config.json").read_text())
+    assert prov["dataset"]["fingerprint"] == learned_darkroom.fingerprint
+    assert prov["train"]["seed"] == 0 and prov["global_step"] == 80 and prov["selection"] is None
+    assert {"torch", "transformers", "accelerate", "datasets"} <= set(prov["versions"])
+    card = (out / "README.md").read_text()
+    assert card.startswith("---\n") and "in-context-rl" in card and objective.upper() in card
+    assert (out / "training_loss.png").stat().st_size > 0
+
+
+def test_selection_counts_weight_the_windows(small_darkroom, tmp_path):
+    sel = filter_histories(small_darkroom, FilterConfig())
+    sel.save(tmp_path / "sel")
+    cfg = TrainConfig(
+        dataset=str(small_darkroom.root),
+        selection=str(tmp_path / "sel"),
+        objective="ad",
+        out=str(tmp_path / "m"),
+        max_steps=5,
+        **TINY,
+    )
+    trainer, prov = build_trainer(cfg)
+    counts = np.array([sel.counts()[h] for h in trainer.train_dataset.arrays.history_index])
+    np.testing.assert_array_equal(trainer.train_dataset.counts, counts)
+    assert prov["windows"] == len(trainer.train_dataset) == counts.sum() * (200 - 40 + 1)
+    assert prov["selection"]["selected_unique"] == int((counts > 0).sum())
+
+
+def test_selection_of_another_dataset_is_rejected(small_darkroom, small_darkroom_batched, tmp_path):
+    filter_histories(small_darkroom_batched, FilterConfig()).save(tmp_path / "sel")
+    cfg = TrainConfig(
+        dataset=str(small_darkroom.root),
+        selection=str(tmp_path / "sel"),
+        objective="ad",
+        out=str(tmp_path / "m"),
+        **TINY,
+    )
+    with pytest.raises(ValueError, match="fingerprint"):
+        build_trainer(cfg)
+
+
+def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
+    base = dict(dataset=str(small_darkroom.root), out=str(tmp_path / "m"))
+    with pytest.raises(ValueError, match="longer than the shortest history"):
+        build_trainer(TrainConfig(objective="ad", **{**base, **TINY, "context_length": 201}))
+    with pytest.raises(ValueError, match="DPT needs the oracle"):
+        model_config_for(
+            get_spec("metaworld-reach"), TrainConfig(objective="dpt", **base), has_optimal=False
+        )
+    with pytest.raises(ValueError, match="DPT needs the oracle"):
+        model_config_for(
+            get_spec("darkroom"), TrainConfig(objective="dpt", **base), has_optimal=False
+        )
+    continuous = icrl_config("tiny", state_dim=2, action_dim=5, discrete_actions=False)
+    with pytest.raises(ValueError, match="continuous action head"):
+        build_trainer(TrainConfig(objective="ad", **base), model_config=continuous)
+    with pytest.raises(ValueError, match="discrete action head"):
+        check_model_env(
+            icrl_config("tiny", state_dim=39, action_dim=4), get_spec("metaworld-reach")
+        )
+    with pytest.raises(ValueError, match="objective"):
+        TrainConfig(objective="bc", **base)
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        train(TrainConfig(objective="ad", resume=True, **base))
+
+
+def test_existing_output_needs_resume_or_overwrite(small_darkroom, tmp_path):
+    cfg = dict(
+        dataset=str(small_darkroom.root),
+        objective="ad",
+        out=str(tmp_path / "m"),
+        max_steps=3,
+        **TINY,
+    )
+    train(TrainConfig(**cfg))
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(TrainConfig(**cfg))
+    train(TrainConfig(**cfg, overwrite=True))
+    assert (tmp_path / "m" / "model.safetensors").exists()
+
+
+def test_resume_continues_identically(small_darkroom, tmp_path):
+    cfg = dict(
+        dataset=str(small_darkroom.root),
+        objective="dicp",
+        max_steps=12,
+        **{**TINY, "save_steps": 6},
+    )
+    full = train(TrainConfig(out=str(tmp_path / "full"), **cfg))
+    # an interrupted run: only the first checkpoint exists
+    part = tmp_path / "part"
+    part.mkdir()
+    shutil.copytree(full / "checkpoint-6", part / "checkpoint-6")
+    resumed = train(TrainConfig(out=str(part), resume=True, **cfg))
+    a, b = load_file(full / "model.safetensors"), load_file(resumed / "model.safetensors")
+    for k in a:
+        torch.testing.assert_close(b[k], a[k], rtol=0, atol=0, msg=k)
+    assert json.loads((resumed / "train_config.json").read_text())["resumed_from"].endswith(
+        "checkpoint-6"
+    )
+
+
+def test_cli_train_and_its_errors(small_darkroom, tmp_path, capsys):
+    out = tmp_path / "m"
+    args = [
+        "train",
+        "--dataset",
+        str(small_darkroom.root),
+        "--objective",
+        "ad",
+        "--out",
+        str(out),
+        "--preset",
+        "tiny",
+        "--max-steps",
+        "3",
+        "--batch-size",
+        "4",
+        "--context-length",
+        "20",
+    ]
+    assert main(args) == 0
+    assert "model:" in capsys.readouterr().out and (out / "config.json").exists()
+    assert main(args) == 1
+    assert "--resume" in capsys.readouterr().err
+    assert main([*args[:-1], "500", "--overwrite"]) == 1
+    assert "longer than the shortest history" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_two_accelerate_processes_report_the_one_process_losses(small_darkroom, tmp_path):
+    """CPU data parallel (committed config): the same global batch gives the same loss per step."""
+    common = [
+        "--dataset",
+        str(small_darkroom.root),
+        "--objective",
+        "ad",
+        "--preset",
+        "tiny",
+        "--max-steps",
+        "4",
+        "--batch-size",
+        "8",
+        "--context-length",
+        "40",
+        "--lr",
+        "3e-3",
+        "--logging-steps",
+        "1",
+    ]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    assert main(["train", *common, "--out", str(tmp_path / "one")]) == 0
+    launcher = [
+        sys.executable,
+        "-m",
+        "accelerate.commands.launch",
+        "--config_file",
+        str(REPO / "training/accelerate/cpu_2proc.yaml"),
+        "--main_process_port",
+        "29547",
+    ]
+    run = subprocess.run(
+        [*launcher, "-m", "lhf_hf", "train", *common, "--out", str(tmp_path / "two")],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    prov = json.loads((tmp_path / "two" / "train_config.json").read_text())
+    assert prov["world_size"] == 2 and prov["per_device_batch_size"] == 4
+    np.testing.assert_allclose(losses(tmp_path / "two"), losses(tmp_path / "one"), rtol=1e-4)
+
+
+@pytest.mark.metaworld
+@pytest.mark.parametrize("objective", ["ad", "dicp"])
+def test_continuous_actions_train_on_metaworld(tmp_path_factory, objective):
+    pytest.importorskip("metaworld")
+    from lhf_hf.collection import collect
+    from lhf_hf.configs import CollectConfig
+
+    root = tmp_path_factory.getbasetemp() / "mw-reach"
+    ds = collect(
+        CollectConfig("metaworld-reach", tasks="0", histories=2, steps=200, workers=1),
+        root,
+        progress=False,
+        resume=root.exists(),
+    )
+    out = train(
+        TrainConfig(
+            dataset=str(root),
+            objective=objective,
+            out=str(tmp_path_factory.mktemp("m") / "m"),
+            max_steps=60,
+            **TINY,
+        )
+    )
+    model = AutoModel.from_pretrained(out)
+    assert (
+        not model.config.discrete_actions
+        and model.config.state_bins == 0
+        and model.config.action_dim == 4
+    )
+    assert model.config.context_length == 40 and ds.env_id == "metaworld-reach"
+    loss = losses(out)
+    assert np.all(np.isfinite(loss)) and np.mean(loss[-2:]) < np.mean(loss[:2]), loss
