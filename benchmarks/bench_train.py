@@ -1,0 +1,158 @@
+"""Training throughput: ``transformers.Trainer`` vs a plain PyTorch loop (same model, same batches).
+
+    python benchmarks/bench_train.py --dataset data/darkroom [--steps 30] [--json OUT]
+
+Targets (DESIGN.md 9, issue "model family"): Trainer >= 0.9x the plain loop's tokens/s on the
+paper preset (AD, context 80, batch 64), and building a batch (sampler + collator) < 5% of a step.
+Also measured: eager vs SDPA attention and ``torch.compile`` in the plain loop, and DICP (two tokens
+per transition).  Each variant starts from the same seed and draws the same windows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+
+import numpy as np
+import torch
+from transformers import TrainerCallback, get_cosine_schedule_with_warmup
+
+from lhf_hf.configs import TrainConfig
+from lhf_hf.training import build_trainer
+
+
+class _StepTimer(TrainerCallback):
+    def __init__(self, warmup: int):
+        self.warmup, self.t0, self.t1 = warmup, None, None
+
+    def on_step_end(self, args, state, control, **kwargs):
+        if state.global_step == self.warmup:
+            self.t0 = time.perf_counter()
+        self.t1 = time.perf_counter()
+
+
+def batches(trainer, n: int):
+    """The first ``n`` batches the Trainer's own sampler and collator produce."""
+    loader = trainer.get_train_dataloader()
+    it = iter(loader)
+    return [next(it) for _ in range(n)]
+
+
+def plain_loop(trainer, data, warmup: int, compile_model: bool = False) -> float:
+    """AdamW + cosine + clipping, the Trainer's settings, in a bare loop; seconds per step."""
+    a = trainer.args
+    torch.manual_seed(a.seed)
+    model = type(trainer.model)(trainer.model.config)
+    model.train()
+    step_fn = torch.compile(model) if compile_model else model
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
+    opt = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": a.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        lr=a.learning_rate,
+        betas=(a.adam_beta1, a.adam_beta2),
+        eps=a.adam_epsilon,
+    )
+    sched = get_cosine_schedule_with_warmup(opt, 0, len(data))
+    t0 = None
+    for i, batch in enumerate(data):
+        if i == warmup:
+            t0 = time.perf_counter()
+        loss = step_fn(**batch).loss
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), a.max_grad_norm)
+        opt.step()
+        sched.step()
+        opt.zero_grad(set_to_none=True)
+    return (time.perf_counter() - t0) / (len(data) - warmup)
+
+
+def trainer_run(cfg: TrainConfig, warmup: int, **overrides) -> float:
+    trainer, _ = build_trainer(cfg)
+    for k, v in overrides.items():
+        setattr(trainer.args, k, v)
+    timer = _StepTimer(warmup)
+    trainer.add_callback(timer)
+    trainer.args.disable_tqdm = True
+    trainer.train()
+    return (timer.t1 - timer.t0) / (cfg.max_steps - warmup)
+
+
+def batching_time(trainer, n: int) -> float:
+    loader = trainer.get_train_dataloader()
+    it = iter(loader)
+    next(it)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        next(it)
+    return (time.perf_counter() - t0) / n
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--warmup", type=int, default=5)
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--json", default=None)
+    args = p.parse_args()
+    tmp = tempfile.mkdtemp(prefix="bench-train-")
+    results = {
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "machine": platform.processor() or platform.machine(),
+        "steps": args.steps,
+        "warmup": args.warmup,
+        "batch_size": args.batch_size,
+        "variants": {},
+    }
+
+    def cfg(objective: str) -> TrainConfig:
+        return TrainConfig(
+            dataset=args.dataset,
+            objective=objective,
+            out=f"{tmp}/{objective}",
+            preset="paper",
+            max_steps=args.steps,
+            batch_size=args.batch_size,
+            save_steps=10**6,
+            logging_steps=10**6,
+            overwrite=True,
+        )
+
+    for objective in ("ad", "dicp"):
+        c = cfg(objective)
+        trainer, _ = build_trainer(c)
+        tokens = c.batch_size * trainer.model.config.max_tokens
+        data = batches(trainer, args.steps)
+        t_batch = batching_time(trainer, 20)
+        rows = {}
+        rows["plain_sdpa"] = plain_loop(trainer, data, args.warmup)
+        rows["trainer_sdpa"] = trainer_run(c, args.warmup)
+        if objective == "ad":
+            trainer.model.config._attn_implementation = "eager"
+            rows["plain_eager"] = plain_loop(trainer, data, args.warmup)
+            trainer.model.config._attn_implementation = "sdpa"
+            try:
+                rows["plain_compiled"] = plain_loop(trainer, data, args.warmup, compile_model=True)
+            except Exception as exc:  # a missing compiler toolchain must not hide the other numbers
+                rows["plain_compiled"] = None
+                results.setdefault("errors", {})["plain_compiled"] = repr(exc)[:300]
+        out = {k: {"s_per_step": v, "tokens_per_s": tokens / v} for k, v in rows.items() if v}
+        out["batching_s"] = t_batch
+        out["batching_share_of_trainer_step"] = t_batch / rows["trainer_sdpa"]
+        out["trainer_vs_plain"] = rows["plain_sdpa"] / rows["trainer_sdpa"]
+        out["tokens_per_step"] = tokens
+        results["variants"][objective] = out
+        print(objective, json.dumps(out, indent=1))
+    if args.json:
+        from lhf_hf.histories.io import write_json_atomic
+
+        write_json_atomic(results, args.json)
+
+
+if __name__ == "__main__":
+    main()
