@@ -16,7 +16,6 @@ import platform
 import tempfile
 import time
 
-import numpy as np
 import torch
 from transformers import TrainerCallback, get_cosine_schedule_with_warmup
 
@@ -51,7 +50,10 @@ def plain_loop(trainer, data, warmup: int, compile_model: bool = False) -> float
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
     opt = torch.optim.AdamW(
-        [{"params": decay, "weight_decay": a.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        [
+            {"params": decay, "weight_decay": a.weight_decay},
+            {"params": no_decay, "weight_decay": 0.0},
+        ],
         lr=a.learning_rate,
         betas=(a.adam_beta1, a.adam_beta2),
         eps=a.adam_epsilon,
@@ -92,7 +94,9 @@ def batching_time(trainer, n: int) -> float:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--dataset", required=True)
     p.add_argument("--steps", type=int, default=30)
     p.add_argument("--warmup", type=int, default=5)

@@ -33,7 +33,48 @@ def plot_loss(log_history: list[dict], path: Path) -> None:
     save_figure_atomic(fig, path)
 
 
-def render_model_card(config, provenance: dict, load_path: str, eval_section: str = NO_EVAL) -> str:
+def eval_section(evaluations: list[dict]) -> str:
+    if not evaluations:
+        return NO_EVAL
+    lines = [
+        "In-context returns on unseen tasks (mean over tasks; whole curve and the last 10% of the "
+        "episodes), from `lhf evaluate`:",
+        "",
+        "| env | tasks | split seed | episodes | planning | mean return | final return | success |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for e in evaluations:
+        succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
+        lines.append(
+            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']} | {e['split_seed']} | {e['episodes']} | "
+            f"{'yes' if e['plan'] else 'no'} | {e['mean_return']:.3f} | {e['final_return']:.3f} | {succ} |"
+        )
+    return "\n".join(lines)
+
+
+def model_index(evaluations: list[dict]) -> list:
+    from huggingface_hub import EvalResult
+
+    out = []
+    for e in evaluations:
+        name = f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}{', planning' if e['plan'] else ''})"
+        out.append(
+            EvalResult(
+                task_type="reinforcement-learning",
+                task_name="in-context reinforcement learning",
+                dataset_type=e["env_id"],
+                dataset_name=name,
+                metric_type="mean_reward",
+                metric_name=f"mean return over {e['episodes']} episodes",
+                metric_value=round(e["mean_return"], 4),
+            )
+        )
+    return out
+
+
+def render_model_card(
+    config, provenance: dict, load_path: str, evaluations: list[dict] | None = None
+) -> str:
     from huggingface_hub import ModelCard, ModelCardData
 
     train = provenance["train"]
@@ -47,6 +88,9 @@ def render_model_card(config, provenance: dict, load_path: str, eval_section: st
         pipeline_tag="reinforcement-learning",
     )
     model_name = f"{config.objective.upper()} on {ds['env_id']}" + (" with LHF" if sel else "")
+    if evaluations:
+        card_data.model_name = model_name
+        card_data.eval_results = model_index(evaluations)
     return ModelCard.from_template(
         card_data,
         template_path=str(template_path("model_card.md")),
@@ -87,11 +131,15 @@ def render_model_card(config, provenance: dict, load_path: str, eval_section: st
         ),
         runtime=provenance.get("train_runtime_s", "-"),
         versions=", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()),
-        eval_section=eval_section,
+        eval_section=eval_section(evaluations or []),
     ).content
 
 
-def write_model_card(out: Path, config, provenance: dict) -> Path:
-    text = render_model_card(config, provenance, load_path=str(Path(out).resolve()))
+def write_model_card(
+    out: Path, config, provenance: dict, evaluations: list[dict] | None = None
+) -> Path:
+    text = render_model_card(
+        config, provenance, load_path=str(Path(out).resolve()), evaluations=evaluations
+    )
     write_text_atomic(text, Path(out) / "README.md")
     return Path(out) / "README.md"

@@ -210,6 +210,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         "dataset": {
             "path": str(Path(cfg.dataset).resolve()),
             "env_id": ds.env_id,
+            "split_seed": int(ds.lhf.get("split_seed", 0)),
             "fingerprint": ds.fingerprint,
             "total_histories": int(arrays.num_histories),
             "total_frames": int(len(arrays.rewards)),

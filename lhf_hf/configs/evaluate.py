@@ -1,0 +1,48 @@
+"""Configuration of ``lhf evaluate`` and ``lhf compare`` (DESIGN.md 7)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """In-context evaluation of one checkpoint.  Stored in ``eval_results.json``.
+
+    model: checkpoint folder (``lhf train`` output).
+    out: output folder (``eval_results.json``, ``eval_curve.png``).
+    env_id: the env to evaluate on; None = the model's.  Must match the model's spaces.
+    split_seed: train/test split; None = the split of the model's training dataset.
+    tasks: ``test`` (the unseen tasks, the paper's protocol), ``train``, or task indices "0,3,7".
+    episodes: episodes per task (paper: 100), from an empty context.
+    plan: DICP planning (beam search / greedy search) once the context is full.
+    seed: seeds action sampling (and Meta-World resets).
+    use_cache: sliding-window KV cache (fast) or a full recompute of the window every step.
+    """
+
+    model: str
+    out: str
+    env_id: str | None = None
+    split_seed: int | None = None
+    tasks: str = "test"
+    episodes: int = 100
+    plan: bool = False
+    seed: int = 0
+    use_cache: bool = True
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
+        if self.split_seed is not None and self.split_seed < 0:
+            raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
+        if self.tasks not in ("test", "train"):
+            try:
+                [int(t) for t in self.tasks.split(",")]
+            except ValueError:
+                raise ValueError(
+                    f"EvalConfig.tasks must be 'test', 'train' or comma-separated task indices, got {self.tasks!r}"
+                ) from None
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

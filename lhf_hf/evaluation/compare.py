@@ -1,0 +1,119 @@
+"""``compare``: baseline vs LHF evaluation runs -> the paper's relative enhancement E, a table, a figure.
+
+Each evaluation folder is one run (one seed / split).  Per backbone (objective, with "+plan" when
+planning was on) and per run, the learning curve is the mean return over the run's test tasks per
+episode.  The paper's relative enhancement is
+
+    E = (mean return over the whole curve with LHF - the same without) / the same without,
+
+computed from the means over runs; its +/- is the std over runs of E computed run by run (pairing
+runs in the given order) when both sides have the same number of runs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .evaluate import RESULTS_FILE
+from .plots import plot_comparison
+
+
+def load_results(path: str) -> dict:
+    p = Path(path)
+    f = p / RESULTS_FILE if p.is_dir() else p
+    if not f.exists():
+        raise FileNotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
+    return json.loads(f.read_text())
+
+
+def backbone_of(r: dict) -> str:
+    return r["objective"].upper() + (" + plan" if r["config"].get("plan") else "")
+
+
+def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
+    if not paths:
+        raise ValueError(f"compare: no {side} evaluation runs given")
+    out: dict[str, list[dict]] = {}
+    for p in paths:
+        r = load_results(p)
+        r["_path"] = str(p)
+        out.setdefault(backbone_of(r), []).append(r)
+    return out
+
+
+def compare(baseline: list[str], lhf: list[str], out: str | Path | None = None) -> dict:
+    base, filt = _group(baseline, "baseline"), _group(lhf, "--lhf")
+    runs = [r for rs in (*base.values(), *filt.values()) for r in rs]
+    envs = {r["env_id"] for r in runs}
+    if len(envs) != 1:
+        raise ValueError(f"compare: the runs are on different envs {sorted(envs)}")
+    episodes = {len(r["mean_curve"]) for r in runs}
+    if len(episodes) != 1:
+        raise ValueError(f"compare: the runs have different numbers of episodes {sorted(episodes)}")
+    if set(base) != set(filt):
+        raise ValueError(
+            f"compare: backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
+        )
+    rows, curves = [], {}
+    for backbone in sorted(base):
+        b = np.array([r["mean_curve"] for r in base[backbone]])  # (runs, E)
+        f = np.array([r["mean_curve"] for r in filt[backbone]])
+        mb, mf = b.mean(1), f.mean(1)  # whole-curve mean per run
+        e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else float("nan")
+        e_std = None
+        if len(mb) == len(mf) and len(mb) > 1 and np.all(mb != 0):
+            e_std = float(np.std((mf - mb) / mb, ddof=0))
+        tail = max(1, b.shape[1] // 10)
+        rows.append(
+            {
+                "backbone": backbone,
+                "runs_baseline": len(mb),
+                "runs_lhf": len(mf),
+                "baseline_mean": float(mb.mean()),
+                "baseline_std": float(mb.std()),
+                "lhf_mean": float(mf.mean()),
+                "lhf_std": float(mf.std()),
+                "baseline_final": float(b[:, -tail:].mean()),
+                "lhf_final": float(f[:, -tail:].mean()),
+                "E": float(e),
+                "E_std": e_std,
+                "baseline_runs": [r["_path"] for r in base[backbone]],
+                "lhf_runs": [r["_path"] for r in filt[backbone]],
+            }
+        )
+        curves[backbone] = {"baseline": b, "lhf": f}
+    env_id = envs.pop()
+    table = markdown_table(rows, env_id)
+    result = {"env_id": env_id, "episodes": episodes.pop(), "rows": rows, "table": table}
+    if out is not None:
+        from lhf_hf.histories.io import write_json_atomic, write_text_atomic
+
+        out = Path(out)
+        write_json_atomic(result, out / "compare.json")
+        write_text_atomic(table + "\n", out / "compare.md")
+        plot_comparison(
+            curves, out / "compare.png", title=f"{env_id}: baseline (dashed) vs LHF (solid)"
+        )
+    return result
+
+
+def markdown_table(rows: list[dict], env_id: str) -> str:
+    def pm(m, s):
+        return f"{m:.2f} ± {s:.2f}"
+
+    lines = [
+        f"| {env_id} | baseline | LHF | E (%) | final baseline | final LHF | runs |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        e = f"{100 * r['E']:+.1f}" + (
+            f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
+        )
+        lines.append(
+            f"| {r['backbone']} | {pm(r['baseline_mean'], r['baseline_std'])} | {pm(r['lhf_mean'], r['lhf_std'])} "
+            f"| {e} | {r['baseline_final']:.2f} | {r['lhf_final']:.2f} | {r['runs_baseline']}/{r['runs_lhf']} |"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,169 @@
+"""``evaluate(cfg)``: roll a checkpoint out in context on unseen tasks; results, curve, model card."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lhf_hf.configs.evaluate import EvalConfig
+
+from .plots import plot_eval_curve
+from .rollout import rollout
+from .task_batch import make_task_batch
+
+RESULTS_FILE = "eval_results.json"
+CURVE_FILE = "eval_curve.png"
+MODEL_EVALS_FILE = "evaluations.json"  # in the checkpoint: every evaluation, rendered in its card
+
+
+def load_model(path: str):
+    from transformers import AutoConfig, AutoModel
+
+    import lhf_hf.modeling  # noqa: F401  (registers lhf_icrl)
+
+    p = Path(path)
+    if not (p / "config.json").exists():
+        raise FileNotFoundError(
+            f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
+        )
+    config = AutoConfig.from_pretrained(p)
+    if getattr(config, "model_type", None) != "lhf_icrl":
+        raise ValueError(
+            f"{path} holds a {config.model_type!r} model, not an lhf_icrl (ICRL) model"
+        )
+    return AutoModel.from_pretrained(p).eval()
+
+
+def resolve_tasks(spec_env: str, tasks: str, split_seed: int) -> list[int]:
+    from lhf_hf.envs import task_split
+
+    train, test = task_split(spec_env, split_seed)
+    if tasks == "test":
+        return list(test)
+    if tasks == "train":
+        return list(train)
+    return [int(t) for t in tasks.split(",")]
+
+
+def curve_summary(returns: np.ndarray) -> dict:
+    """returns: (tasks, episodes) -> mean curve over tasks and its whole-curve / end values."""
+    curve = returns.mean(0)
+    tail = max(1, len(curve) // 10)
+    return {
+        "mean_curve": curve.tolist(),
+        "mean_return": float(curve.mean()),
+        "final_return": float(curve[-tail:].mean()),  # the last 10% of the episodes
+        "first_return": float(curve[0]),
+    }
+
+
+def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
+    """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
+    to the checkpoint's card.  Returns the results dict."""
+    from lhf_hf.envs import get_spec
+    from lhf_hf.histories.io import write_json_atomic
+    from lhf_hf.histories.writer import library_versions
+    from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
+
+    model = load_model(cfg.model)
+    mc = model.config
+    env_id = cfg.env_id or mc.env_id
+    if env_id is None:
+        raise ValueError(f"{cfg.model} does not name its env: pass --env")
+    spec = get_spec(env_id)
+    check_model_env(mc, spec)
+    if mc.env_id and env_id != mc.env_id:
+        raise ValueError(f"the model was trained on {mc.env_id!r}, not on {env_id!r}")
+    if cfg.plan and mc.objective != "dicp":
+        raise ValueError(
+            f"--plan needs a model with dynamics heads (objective dicp); {cfg.model} is {mc.objective!r}"
+        )
+    train_cfg_path = Path(cfg.model) / TRAIN_CONFIG_FILE
+    train_cfg = json.loads(train_cfg_path.read_text()) if train_cfg_path.exists() else None
+    split_seed = cfg.split_seed
+    if split_seed is None:
+        split_seed = int(((train_cfg or {}).get("dataset") or {}).get("split_seed", 0))
+    tasks = resolve_tasks(env_id, cfg.tasks, split_seed)
+    batch = make_task_batch(env_id, tasks, split_seed, cfg.seed)
+    res = rollout(
+        model,
+        batch,
+        cfg.episodes,
+        seed=cfg.seed,
+        plan=cfg.plan,
+        use_cache=cfg.use_cache,
+        progress=progress,
+    )
+    out = Path(cfg.out)
+    results = {
+        "config": cfg.to_dict(),
+        "env_id": env_id,
+        "split_seed": split_seed,
+        "tasks": tasks,
+        "objective": mc.objective,
+        "model": {
+            "path": str(Path(cfg.model).resolve()),
+            "objective": mc.objective,
+            "selection": (train_cfg or {}).get("selection"),
+            "dataset": (train_cfg or {}).get("dataset"),
+            "train": (train_cfg or {}).get("train"),
+        },
+        "returns": res.returns.tolist(),  # (tasks, episodes)
+        "success": None if res.success is None else res.success.astype(int).tolist(),
+        **curve_summary(res.returns),
+        "success_rate": None if res.success is None else float(res.success.mean()),
+        "wall_s": round(res.wall_s, 3),
+        "env_steps": res.env_steps,
+        "env_steps_per_s": round(res.env_steps / res.wall_s, 1),
+        "planned_steps": res.planned_steps,
+        "versions": library_versions(["transformers"]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    write_json_atomic(results, out / RESULTS_FILE)
+    optimal = spec.optimal_returns()[tasks].mean() if spec.optimal_returns is not None else None
+    plot_eval_curve(
+        {f"{mc.objective.upper()}{' + planning' if cfg.plan else ''}": res.returns},
+        out / CURVE_FILE,
+        title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, in context",
+        optimal=optimal,
+    )
+    _add_to_model_card(Path(cfg.model), results)
+    return results
+
+
+def _add_to_model_card(model_dir: Path, results: dict) -> None:
+    """Append a summary to the checkpoint's evaluations and re-render its card (model-index)."""
+    from lhf_hf.histories.io import write_json_atomic
+    from lhf_hf.training.card import write_model_card
+    from lhf_hf.training.trainer import TRAIN_CONFIG_FILE
+
+    prov_path = model_dir / TRAIN_CONFIG_FILE
+    if not prov_path.exists():
+        return  # not an lhf checkpoint folder (no card to update)
+    evals_path = model_dir / MODEL_EVALS_FILE
+    evals = json.loads(evals_path.read_text()) if evals_path.exists() else []
+    summary = {
+        "out": str(Path(results["config"]["out"]).resolve()),
+        "env_id": results["env_id"],
+        "split_seed": results["split_seed"],
+        "tasks": results["config"]["tasks"],
+        "num_tasks": len(results["tasks"]),
+        "episodes": results["config"]["episodes"],
+        "plan": results["config"]["plan"],
+        "seed": results["config"]["seed"],
+        "mean_return": results["mean_return"],
+        "final_return": results["final_return"],
+        "success_rate": results["success_rate"],
+    }
+    evals = [e for e in evals if e["out"] != summary["out"]] + [summary]
+    write_json_atomic(evals, evals_path)
+    from transformers import AutoConfig
+
+    import lhf_hf.modeling  # noqa: F401
+
+    write_model_card(
+        model_dir, AutoConfig.from_pretrained(model_dir), json.loads(prov_path.read_text()), evals
+    )

@@ -1,0 +1,161 @@
+"""In-context rollouts (paper Algorithm 2, "Test"; DESIGN.md 7).
+
+All tasks of a batch run in lockstep from an empty context; actions are sampled from the model's
+policy (or chosen by the DICP planner once the context is full); the context slides over the last K
+transitions.  One token per environment step is appended (DICP: the query-action token of the step
+just taken, then the new transition token), so a rollout costs one small backbone call per step with
+the KV cache.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .context import Context
+from .planning import beam_search, greedy_search
+
+
+@dataclass
+class RolloutResult:
+    """returns / success: (B, E) per task and episode; actions: (B, E * horizon) when recorded."""
+
+    returns: np.ndarray
+    success: np.ndarray | None
+    actions: np.ndarray | None
+    wall_s: float
+    env_steps: int
+    planned_steps: int
+
+
+def _tensor(x, dtype=None) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(x))
+    return t if dtype is None else t.to(dtype)
+
+
+def sample_actions(dist: dict, rng: np.random.Generator, low=-1.0, high=1.0) -> np.ndarray:
+    """Sample from the policy with the rollout's own uniform stream (inverse CDF), so that two
+    rollouts with the same seed and (numerically) the same policy take the same actions."""
+    if "action_logits" in dist:
+        probs = torch.softmax(dist["action_logits"][:, -1].double(), -1).numpy()  # (B, A)
+        u = rng.random(len(probs))[:, None]
+        return np.minimum((np.cumsum(probs, 1) < u).sum(1), probs.shape[1] - 1)
+    mean = dist["action_mean"][:, -1].double().numpy()
+    std = np.exp(dist["action_log_std"][:, -1].double().numpy())
+    return np.clip(mean + std * rng.standard_normal(mean.shape), low, high).astype(np.float32)
+
+
+@torch.no_grad()
+def rollout(
+    model,
+    tasks,
+    episodes: int,
+    seed: int = 0,
+    plan: bool = False,
+    use_cache: bool = True,
+    progress: bool = True,
+    record_actions: bool = False,
+) -> RolloutResult:
+    """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context."""
+    c = model.config
+    model.eval()
+    dicp = c.objective == "dicp"
+    if plan and not dicp:
+        raise ValueError(
+            f"planning needs the dynamics heads of a DICP model; this model's objective is {c.objective!r}"
+        )
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    ctx = Context(model, use_cache=use_cache)
+    H = tasks.horizon
+    returns, success, taken = [], [], []
+    prev = None  # (state, action, reward, done) of the last step, numpy
+    steps = planned = 0
+    t0 = time.perf_counter()
+    bar = tqdm(total=episodes, unit="episode", disable=not progress, desc="evaluate", leave=False)
+    for _ in range(episodes):
+        state = tasks.reset()
+        B = len(state)
+        ep_return = np.zeros(B, np.float64)
+        ep_success = np.zeros(B, bool)
+        for t in range(H):
+            s = _tensor(state)[:, None]  # (B, 1, S)
+            if prev is None:
+                zeros_a = (
+                    np.zeros((B, c.action_dim), np.float32)
+                    if not c.discrete_actions
+                    else np.zeros(B, np.int64)
+                )
+                p_state, p_action, p_reward, p_done = (
+                    np.zeros_like(state),
+                    zeros_a,
+                    np.zeros(B),
+                    np.zeros(B, bool),
+                )
+                has_prev = torch.zeros(B, 1, dtype=torch.bool)
+            else:
+                p_state, p_action, p_reward, p_done = prev
+                has_prev = torch.ones(B, 1, dtype=torch.bool)
+            tok = model.embed_transitions(
+                states=s,
+                prev_states=_tensor(p_state)[:, None],
+                prev_actions=_tensor(p_action)[:, None],
+                prev_rewards=_tensor(p_reward, torch.float32)[:, None],
+                prev_dones=_tensor(p_done)[:, None],
+                has_prev=has_prev,
+            )  # (B, 1, D)
+            if dicp and prev is not None:  # the query-action token of the step just taken
+                q = model.embed_query_actions(_tensor(p_state)[:, None], _tensor(p_action)[:, None])
+                tok = torch.cat([q, tok], dim=1)  # (B, 2, D)
+            hidden = ctx.append(tok)[:, -1:]  # (B, 1, D)
+            dist = model.action_distribution(hidden)
+            full = steps + 1 >= c.context_length  # the context holds K transitions
+            if plan and full and c.discrete_actions:
+                action = beam_search(
+                    model,
+                    ctx,
+                    s[:, 0],
+                    dist["action_logits"][:, 0],
+                    min(c.plan_horizon, H - t),
+                    c.plan_beams,
+                ).numpy()
+                planned += 1
+            elif plan and full and t >= H // 2:  # continuous: second half of each episode (ref)
+                action = greedy_search(
+                    model,
+                    ctx,
+                    s[:, 0],
+                    dist["action_mean"][:, 0],
+                    dist["action_log_std"][:, 0],
+                    c.plan_samples,
+                    rng,
+                ).numpy()
+                planned += 1
+            else:
+                action = sample_actions(dist, rng)
+            nxt, reward, done, succ = tasks.step(action)
+            ep_return += reward
+            if succ is not None:
+                ep_success |= succ
+            if record_actions:
+                taken.append(np.asarray(action))
+            prev = (state, action, reward, done)
+            state = nxt
+            steps += 1
+        returns.append(ep_return)
+        success.append(ep_success)
+        bar.update(1)
+        bar.set_postfix(mean_return=f"{ep_return.mean():.2f}")
+    bar.close()
+    return RolloutResult(
+        returns=np.stack(returns, 1),
+        success=np.stack(success, 1) if tasks.has_success else None,
+        actions=np.stack(taken, 1) if record_actions else None,
+        wall_s=time.perf_counter() - t0,
+        env_steps=steps * len(state),
+        planned_steps=planned,
+    )

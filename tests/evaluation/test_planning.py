@@ -1,0 +1,151 @@
+"""DICP planners against a stand-in model whose dynamics and rewards are known exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lhf_hf.evaluation import Context, beam_search, greedy_search
+
+LEFT, RIGHT, STAY = 0, 1, 2
+
+
+class ChainModel:
+    """A stand-in for ICRLModel on a chain of 10 cells with 3 actions.
+
+    Token "embeddings" carry (state, action) in plain numbers and the backbone is the identity, so
+    the dynamics heads read the exact (s, a) of each query-action token: next state = s -/+ 1 (or s),
+    reward = ``reward(s, a)``.  The policy prefers the actions in ``policy_order``.
+    """
+
+    def __init__(self, reward, policy_order=(STAY, RIGHT, LEFT)):
+        self.reward = reward
+        self.policy_logits = torch.zeros(3)
+        for rank, a in enumerate(policy_order):
+            self.policy_logits[a] = -rank
+        self.config = type("C", (), {"objective": "dicp", "context_length": 4})()
+
+    @staticmethod
+    def step(s, a):
+        return torch.clamp(s + torch.where(a == LEFT, -1, torch.where(a == RIGHT, 1, 0)), 0, 9)
+
+    def embed_query_actions(self, states, actions):  # (N, 1, S), (N, 1) -> (N, 1, 3)
+        return torch.stack(
+            [states[..., 0].float(), actions.float(), torch.ones_like(actions, dtype=torch.float)],
+            -1,
+        )
+
+    def embed_transitions(
+        self, states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
+    ):
+        return torch.stack(
+            [
+                states[..., 0].float(),
+                torch.full_like(states[..., 0], -1).float(),
+                torch.zeros_like(states[..., 0]).float(),
+            ],
+            -1,
+        )
+
+    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
+        return inputs_embeds, past_key_values
+
+    def action_distribution(self, hidden):
+        return {"action_logits": self.policy_logits.expand(*hidden.shape[:-1], 3)}
+
+    def dynamics(self, hidden):
+        s, a = hidden[..., 0].long(), hidden[..., 1].long()
+        nxt = self.step(s, a)
+        r = torch.tensor(
+            [
+                [self.reward(int(x), int(y)) for x, y in zip(row_s, row_a, strict=True)]
+                for row_s, row_a in zip(s, a, strict=True)
+            ]
+        )
+        return {
+            "reward_pred": r.float(),
+            "next_state_logits": torch.nn.functional.one_hot(nxt, 10).unsqueeze(-2).float(),
+            "return_pred": torch.zeros_like(r).float(),
+        }
+
+    @staticmethod
+    def predicted_next_states(out):
+        return out["next_state_logits"].argmax(-1)
+
+
+def goal_reward(s, a):
+    """1 for every step that ends on cell 8; a bait of 0.45 for stepping left from cell 5."""
+    nxt = int(ChainModel.step(torch.tensor(s), torch.tensor(a)))
+    return (1.0 if nxt == 8 else 0.0) + (0.45 if (s, a) == (5, LEFT) else 0.0)
+
+
+def plan(model, start: int, horizon: int, beams: int = 10) -> int:
+    ctx = Context(model, use_cache=True, max_tokens=8)
+    states = torch.tensor([[start]])
+    ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
+    logits = model.policy_logits[None]
+    return int(beam_search(model, ctx, states, logits, horizon, beams)[0])
+
+
+def test_beam_search_finds_the_best_plan_not_the_greedy_step():
+    model = ChainModel(goal_reward)
+    # horizon 4 from cell 5: right, right, right (1), stay (1) = 2 > left, right, left, . = 0.9
+    assert plan(model, 5, horizon=4) == RIGHT
+    # horizon 1: only the bait pays
+    assert plan(model, 5, horizon=1) == LEFT
+    # horizon 3 reaches cell 8 at the last step: 1 > the bait taken twice (left, right, left) = 0.9
+    assert plan(model, 5, horizon=3) == RIGHT
+    # horizon 2 cannot reach cell 8: the bait wins
+    assert plan(model, 5, horizon=2) == LEFT
+
+
+def test_beam_search_breaks_ties_by_the_policy_order():
+    no_reward = ChainModel(lambda s, a: 0.0, policy_order=(RIGHT, STAY, LEFT))
+    assert plan(no_reward, 5, horizon=3) == RIGHT
+    no_reward = ChainModel(lambda s, a: 0.0, policy_order=(LEFT, RIGHT, STAY))
+    assert plan(no_reward, 5, horizon=3) == LEFT
+
+
+def test_beam_search_batches_independent_streams():
+    model = ChainModel(goal_reward)
+    ctx = Context(model, use_cache=True, max_tokens=8)
+    states = torch.tensor([[5], [7], [9]])
+    ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
+    logits = model.policy_logits.expand(3, 3)
+    got = beam_search(model, ctx, states, logits, horizon=4, beams=10).tolist()
+    # from 7 step right onto 8; from 9 step left onto 8
+    assert got == [RIGHT, RIGHT, LEFT]
+
+
+def test_a_narrow_beam_can_miss_the_best_plan():
+    """With one beam the search keeps only the best partial path (the bait) and cannot recover."""
+    model = ChainModel(goal_reward)
+    assert plan(model, 5, horizon=4, beams=1) == LEFT
+
+
+class BanditModel:
+    """Continuous stand-in: the predicted reward is -(a - 0.3)^2 summed over the action dims."""
+
+    config = type("C", (), {"objective": "dicp", "context_length": 4})()
+
+    def embed_query_actions(self, states, actions):
+        return actions.float()
+
+    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
+        return inputs_embeds, past_key_values
+
+    def dynamics(self, hidden):
+        return {"reward_pred": -((hidden - 0.3) ** 2).sum(-1)}
+
+
+def test_greedy_search_picks_the_candidate_with_the_highest_predicted_reward():
+    model = BanditModel()
+    ctx = Context(model, use_cache=True, max_tokens=4)
+    ctx.append(torch.zeros(2, 1, 2))
+    mean = torch.tensor([[0.0, 0.0], [0.3, 0.3]])
+    log_std = torch.zeros(2, 2)
+    rng = np.random.default_rng(0)
+    best = greedy_search(model, ctx, torch.zeros(2, 1), mean, log_std, samples=200, rng=rng)
+    # stream 0: some sample lands near 0.3 and beats the mean (0, 0); stream 1: the mean is optimal
+    assert torch.all((best[0] - 0.3).abs() < 0.15) and not torch.allclose(best[0], mean[0])
+    torch.testing.assert_close(best[1], mean[1])

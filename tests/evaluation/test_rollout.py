@@ -1,0 +1,225 @@
+"""In-context rollouts: cache vs recompute, planning schedule, evaluate() outputs, compare(), errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lhf_hf.cli.main import main
+from lhf_hf.configs import EvalConfig, TrainConfig
+from lhf_hf.envs import get_spec, task_split
+from lhf_hf.evaluation import compare, evaluate, make_task_batch, rollout
+from lhf_hf.modeling import ICRLModel
+from lhf_hf.training import model_config_for
+
+
+def darkroom_model(objective="ad", layers=1, context=10, seed=0):
+    cfg = model_config_for(
+        get_spec("darkroom"),
+        TrainConfig(
+            dataset="-", objective=objective, out="-", preset="tiny", context_length=context
+        ),
+        True,
+    )
+    cfg.num_hidden_layers = layers
+    torch.manual_seed(seed)
+    return ICRLModel(cfg).eval()
+
+
+def actions(model, episodes, use_cache, plan=False, seed=3):
+    _, test = task_split("darkroom", 0)
+    r = rollout(
+        model,
+        make_task_batch("darkroom", test, 0, 0),
+        episodes,
+        seed=seed,
+        plan=plan,
+        use_cache=use_cache,
+        progress=False,
+        record_actions=True,
+    )
+    return r
+
+
+@pytest.mark.parametrize("objective", ["ad", "dicp"])
+def test_cache_and_recompute_take_identical_actions_one_layer(objective):
+    """One layer: the sliding KV cache is exactly the window recompute, evictions included."""
+    model = darkroom_model(objective, layers=1, context=10)
+    a, b = actions(model, 4, True), actions(model, 4, False)  # 80 steps, context 10: 70 evictions
+    np.testing.assert_array_equal(a.actions, b.actions)
+    np.testing.assert_array_equal(a.returns, b.returns)
+
+
+def test_cache_equals_recompute_until_the_window_fills_deeper_models():
+    model = darkroom_model("ad", layers=3, context=30)
+    a, b = actions(model, 2, True), actions(model, 2, False)
+    np.testing.assert_array_equal(a.actions[:, :30], b.actions[:, :30])
+
+
+def test_planning_starts_once_the_context_is_full():
+    model = darkroom_model("dicp", layers=1, context=10)
+    r = actions(model, 2, True, plan=True)
+    assert r.planned_steps == 40 - 9  # steps 10..40 (the context holds 10 transitions from step 10)
+    r2 = actions(model, 2, False, plan=True)
+    np.testing.assert_array_equal(r.actions, r2.actions)  # planning in both context modes agrees
+
+
+def test_same_seed_same_rollout_other_seed_differs():
+    model = darkroom_model("ad")
+    a, b, c = (
+        actions(model, 2, True, seed=1),
+        actions(model, 2, True, seed=1),
+        actions(model, 2, True, seed=2),
+    )
+    np.testing.assert_array_equal(a.actions, b.actions)
+    assert not np.array_equal(a.actions, c.actions)
+
+
+def test_evaluate_writes_results_curve_and_model_card(tmp_path):
+    from lhf_hf.training.card import write_model_card
+
+    model = darkroom_model("dicp")
+    model.save_pretrained(tmp_path / "m")
+    prov = {
+        "train": TrainConfig(dataset="d", objective="dicp", out="m").to_dict(),
+        "dataset": {"path": "d", "env_id": "darkroom", "split_seed": 3, "fingerprint": "0" * 64},
+        "selection": None,
+    }
+    (tmp_path / "m" / "train_config.json").write_text(json.dumps(prov))
+    write_model_card(tmp_path / "m", model.config, prov)
+    r = evaluate(
+        EvalConfig(model=str(tmp_path / "m"), out=str(tmp_path / "ev"), episodes=3, plan=True),
+        progress=False,
+    )
+    _, test = task_split("darkroom", 3)  # the training dataset's split by default
+    assert r["split_seed"] == 3 and r["tasks"] == list(test) and len(r["tasks"]) == 8
+    assert np.asarray(r["returns"]).shape == (8, 3) and r["planned_steps"] > 0
+    assert np.isclose(r["mean_return"], np.mean(r["returns"]))
+    saved = json.loads((tmp_path / "ev" / "eval_results.json").read_text())
+    assert (
+        saved["config"]["plan"]
+        and saved["model"]["objective"] == "dicp"
+        and "torch" in saved["versions"]
+    )
+    assert (tmp_path / "ev" / "eval_curve.png").stat().st_size > 0
+    card = (tmp_path / "m" / "README.md").read_text()
+    assert "model-index:" in card and "mean_reward" in card and "| darkroom | 8 test |" in card
+
+
+def test_evaluate_errors(tmp_path):
+    ad = darkroom_model("ad")
+    ad.save_pretrained(tmp_path / "ad")
+    with pytest.raises(ValueError, match="dynamics heads"):
+        evaluate(
+            EvalConfig(model=str(tmp_path / "ad"), out=str(tmp_path / "e"), episodes=1, plan=True)
+        )
+    with pytest.raises(ValueError, match="trained on 'darkroom'"):
+        evaluate(
+            EvalConfig(
+                model=str(tmp_path / "ad"),
+                out=str(tmp_path / "e"),
+                env_id="darkroom-large",
+                episodes=1,
+            )
+        )
+    with pytest.raises(ValueError, match="discrete action head"):
+        evaluate(
+            EvalConfig(
+                model=str(tmp_path / "ad"),
+                out=str(tmp_path / "e"),
+                env_id="metaworld-reach",
+                episodes=1,
+            )
+        )
+    with pytest.raises(FileNotFoundError, match="no model checkpoint"):
+        evaluate(EvalConfig(model=str(tmp_path / "none"), out=str(tmp_path / "e")))
+    with pytest.raises(ValueError, match="episodes"):
+        EvalConfig(model="m", out="o", episodes=0)
+
+
+def fake_eval(path, objective, curve, env="darkroom", plan=False):
+    path.mkdir(parents=True)
+    (path / "eval_results.json").write_text(
+        json.dumps(
+            {"env_id": env, "objective": objective, "config": {"plan": plan}, "mean_curve": curve}
+        )
+    )
+    return str(path)
+
+
+def test_compare_relative_enhancement_by_hand(tmp_path):
+    base = [
+        fake_eval(tmp_path / f"b{i}", "ad", c) for i, c in enumerate([[1, 3], [2, 2]])
+    ]  # means 2, 2
+    lhf = [
+        fake_eval(tmp_path / f"l{i}", "ad", c) for i, c in enumerate([[2, 4], [3, 5]])
+    ]  # means 3, 4
+    r = compare(base, lhf, tmp_path / "cmp")
+    row = r["rows"][0]
+    assert row["backbone"] == "AD" and row["baseline_mean"] == 2 and row["lhf_mean"] == 3.5
+    assert np.isclose(row["E"], (3.5 - 2) / 2)
+    assert np.isclose(row["E_std"], np.std([0.5, 1.0]))  # per-run E: (3-2)/2, (4-2)/2
+    assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.50 | +75.0 ± 25.0 |" in r["table"]
+    assert (tmp_path / "cmp" / "compare.png").stat().st_size > 0
+    assert (tmp_path / "cmp" / "compare.md").read_text().startswith("| darkroom |")
+
+
+def test_compare_errors(tmp_path):
+    a = fake_eval(tmp_path / "a", "ad", [1, 2])
+    with pytest.raises(ValueError, match="different envs"):
+        compare([a], [fake_eval(tmp_path / "b", "ad", [1, 2], env="darkroom-large")])
+    with pytest.raises(ValueError, match="numbers of episodes"):
+        compare([a], [fake_eval(tmp_path / "c", "ad", [1, 2, 3])])
+    with pytest.raises(ValueError, match="backbones differ"):
+        compare([a], [fake_eval(tmp_path / "d", "dpt", [1, 2])])
+    with pytest.raises(ValueError, match="no baseline"):
+        compare([], [a])
+    with pytest.raises(FileNotFoundError, match="eval_results.json"):
+        compare([a], [str(tmp_path / "missing")])
+
+
+def test_cli_evaluate_and_compare(tmp_path, capsys):
+    darkroom_model("ad").save_pretrained(tmp_path / "m")
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                str(tmp_path / "m"),
+                "--episodes",
+                "2",
+                "--out",
+                str(tmp_path / "e"),
+            ]
+        )
+        == 0
+    )
+    assert "mean return" in capsys.readouterr().out
+    assert main(["compare", "--baseline", str(tmp_path / "e"), "--lhf", str(tmp_path / "e")]) == 0
+    assert "+0.0" in capsys.readouterr().out
+    assert (
+        main(["evaluate", "--model", str(tmp_path / "m"), "--plan", "--out", str(tmp_path / "x")])
+        == 1
+    )
+    assert "dynamics heads" in capsys.readouterr().err
+
+
+@pytest.mark.metaworld
+def test_metaworld_rollout_with_greedy_planning():
+    pytest.importorskip("metaworld")
+    cfg = model_config_for(
+        get_spec("metaworld-reach"),
+        TrainConfig(dataset="-", objective="dicp", out="-", preset="tiny", context_length=50),
+        False,
+    )
+    torch.manual_seed(0)
+    model = ICRLModel(cfg).eval()
+    batch = make_task_batch("metaworld-reach", [50, 51], 0, 0)
+    r = rollout(model, batch, 2, seed=0, plan=True, progress=False, record_actions=True)
+    assert r.returns.shape == (2, 2) and r.success.shape == (2, 2)
+    # greedy planning only in each episode's second half (the context of 50 is full by then)
+    assert r.planned_steps == 2 * 50
+    assert np.all(np.abs(r.actions) <= 1)
