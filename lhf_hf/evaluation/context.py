@@ -73,6 +73,21 @@ class Context:
                 layer.values = layer.values[:, :, drop:]
             self.length -= drop
 
+    # ------------------------------------------------------------------ planning
+    @torch.no_grad()
+    def snapshot(self) -> tuple[DynamicCache, int, int]:
+        """(cache of the current window, its length, the next token's position) for a planner.
+
+        The cache shares the context's tensors (appending to it creates new ones), so planning never
+        changes the context; in recompute mode the window is encoded once here."""
+        if self.use_cache:
+            data = [(layer.keys, layer.values) for layer in self.cache.layers]
+            return DynamicCache(ddp_cache_data=data), self.length, self.pos
+        L = self.embeds.shape[1]
+        pos = torch.arange(L).unsqueeze(0).expand(self.embeds.shape[0], L)
+        _, cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
+        return cache, L, L
+
     # ------------------------------------------------------------------ branching
     def _copy(self) -> Context:
         other = Context(self.model, self.use_cache, self.max_tokens)

@@ -1,15 +1,17 @@
 """DICP planning (paper appendix "DICP"; DESIGN.md 7): the planner takes the model as an argument.
 
-Both planners extend a *branch* of the rollout's context (``Context.repeat`` / ``select``) with
-query-action tokens ``Q(s, a)`` and imagined transition tokens ``T(s, a, r_hat, s_hat)``, exactly the
-token sequence of training, so the real context is encoded once and reused by every beam.
+Imagined paths are a *tree* of tokens appended to the rollout's cached context: query-action tokens
+``Q(s, a)`` and imagined transition tokens ``T(s, a, r_hat, s_hat)``, the token sequence of training.
+All beams of all tasks extend the one shared context in a single backbone call per depth, with a
+tree attention mask (each token sees the context window and its own path only) and the positions it
+would have on a linear path, so the context is encoded once per real step and never copied per beam
+(the reference code recomputes the context for every beam).
 
-- ``beam_search`` (discrete actions): beams start from the current state; every depth expands each
-  beam with every action, scores a candidate by the sum of predicted rewards along its path, keeps the
-  best ``beams`` (ties broken by the policy's order: more probable actions first, then earlier beams),
-  and imagines the next state with the next-state head.  One backbone call per depth: the imagined
-  transition token of the previous depth and the candidates' query-action tokens go in together.
-  Returns the first action of the best beam.
+- ``beam_search`` (discrete actions): beams start from the current state; each depth expands every
+  beam with every action, scores a candidate by the sum of predicted rewards along its path, keeps
+  the best ``beams`` (ties: the more probable action under the beam's policy first, then the earlier
+  beam), and imagines the next state with the next-state head.  Returns the first action of the best
+  path.
 - ``greedy_search`` (continuous actions): the policy mean and ``samples - 1`` draws from the policy;
   the candidate with the highest predicted reward wins.
 """
@@ -30,6 +32,42 @@ def _rank_candidates(score: torch.Tensor, policy_rank: torch.Tensor, keep: int) 
     return order.gather(1, by_score)[:, :keep]
 
 
+class _Tree:
+    """Appends tree tokens to a snapshot of the context; builds their attention mask."""
+
+    def __init__(self, model, context: Context):
+        self.model = model
+        self.cache, self.L0, self.pos0 = context.snapshot()
+        self.window = context.max_tokens  # tokens a transition token sees (its own included)
+        self.n_tree = 0
+
+    def forward(self, embeds, offsets, is_query, ancestors, new_links):
+        """embeds (B, n, D); offsets (n,) path offsets (0 = the first token after the context);
+        is_query (n,) bool; ancestors (B, n, n_tree) bool: earlier tree tokens each new token sees;
+        new_links (n, n) bool: new tokens each new token sees (itself included)."""
+        B, n, _ = embeds.shape
+        # every token sees at most its training window: a query-action token one more than a
+        # transition token, so the oldest context tokens drop out as the path grows
+        win = self.window + is_query.long()  # (n,)
+        drop = (self.L0 + offsets + 1 - win).clamp(min=0)  # (n,)
+        ctx = torch.arange(self.L0)[None, :] >= drop[:, None]  # (n, L0)
+        mask = torch.cat(
+            [ctx.expand(B, n, self.L0), ancestors, new_links.expand(B, n, n)], dim=2
+        )  # (B, n, L0 + n_tree + n)
+        pos = (self.pos0 + offsets).expand(B, n)
+        # an additive float mask: CPU SDPA converts a boolean one on every layer
+        bias = torch.zeros(mask.shape, dtype=embeds.dtype).masked_fill_(~mask, float("-inf"))
+        hidden, self.cache = self.model.run_backbone(
+            embeds,
+            past_key_values=self.cache,
+            position_ids=pos,
+            use_cache=True,
+            attention_mask=bias[:, None],
+        )
+        self.n_tree += n
+        return hidden
+
+
 @torch.no_grad()
 def beam_search(
     model,
@@ -38,65 +76,84 @@ def beam_search(
     logits: torch.Tensor,
     horizon: int,
     beams: int,
-) -> torch.Tensor:
-    """First action (B,) of the best imagined path of ``horizon`` steps.
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
     context: the rollout's context, ending with the current transition token.
     states: (B, S) current states; logits: (B, A) the policy's logits at the current token.
     """
     B, A = logits.shape
-    dev = logits.device
+    tree = _Tree(model, context)
+    b_idx = torch.arange(B)[:, None]
     nb = 1
-    beam_ctx = context
-    beam_state = states  # (B * nb, S)
-    beam_score = torch.zeros(B, 1, device=dev)  # (B, nb)
-    beam_first = None  # (B, nb) first action of each beam
-    pending = None  # the imagined transition token each beam still has to append
-    policy = logits  # (B * nb, A)
+    beam_state = states[:, None]  # (B, nb, S)
+    beam_score = torch.zeros(B, 1)
+    beam_first = None  # (B, nb)
+    beam_anc = torch.zeros(B, 1, 0, dtype=torch.bool)  # (B, nb, n_tree) the path of each beam
+    beam_T = None  # (B, nb, D) each beam's imagined transition token, appended at the next depth
+    policy = logits[:, None]  # (B, nb, A)
     for depth in range(horizon):
-        actions = torch.arange(A, device=dev).repeat(B * nb)  # (B * nb * A,) every action per beam
-        cand_ctx = beam_ctx.repeat(A)  # rows: (b, beam, action)
+        acts = torch.arange(A).expand(B, nb, A)  # (B, nb, A)
         q = model.embed_query_actions(
-            beam_state.repeat_interleave(A, 0)[:, None], actions[:, None]
-        )  # (B * nb * A, 1, D)
-        tokens = q if pending is None else torch.cat([pending.repeat_interleave(A, 0), q], dim=1)
-        hidden = cand_ctx.append(tokens)  # (B * nb * A, 1 or 2, D)
-        if pending is not None:  # the policy at the imagined state orders this depth's candidates
-            policy = model.action_distribution(hidden[::A, :1])["action_logits"][
-                :, 0
-            ]  # (B * nb, A)
-        dyn = model.dynamics(hidden[:, -1:])
-        r_hat = dyn["reward_pred"][:, 0]  # (B * nb * A,)
-        s_hat = model.predicted_next_states(dyn)[:, 0]  # (B * nb * A, S)
-        score = beam_score.repeat_interleave(A, 1) + r_hat.view(B, nb * A)  # (B, nb * A)
-        # policy order: rank of each action in its beam's policy (0 = most probable)
+            beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1),
+            acts.reshape(B, nb * A),
+        ).view(B, nb, A, -1)  # (B, nb, A, D)
+        per_beam = A if beam_T is None else 1 + A  # [T_j,] Q_j0 .. Q_jA-1
+        if beam_T is None:
+            embeds = q.reshape(B, nb * A, -1)
+        else:
+            embeds = torch.cat([beam_T[:, :, None], q], dim=2).reshape(B, nb * per_beam, -1)
+        n = nb * per_beam
+        is_query = torch.ones(per_beam, dtype=torch.bool)
+        offsets = torch.full((per_beam,), 2 * depth)
+        if beam_T is not None:
+            is_query[0] = False
+            offsets[0] = 2 * depth - 1
+        links = torch.eye(per_beam, dtype=torch.bool)
+        if beam_T is not None:
+            links[1:, 0] = True  # the beam's query-action tokens follow its transition token
+        new_links = torch.block_diag(*[links] * nb)  # (n, n)
+        ancestors = beam_anc.repeat_interleave(per_beam, dim=1)  # (B, n, n_tree)
+        base = tree.n_tree
+        hidden = tree.forward(embeds, offsets.repeat(nb), is_query.repeat(nb), ancestors, new_links)
+        hidden = hidden.view(B, nb, per_beam, -1)
+        if beam_T is not None:  # the policy at the imagined state orders this depth's candidates
+            policy = model.action_distribution(hidden[:, :, 0])["action_logits"]  # (B, nb, A)
+        dyn = model.dynamics(hidden[:, :, per_beam - A :].reshape(B, nb * A, -1))
+        r_hat = dyn["reward_pred"]  # (B, nb * A)
+        s_hat = model.predicted_next_states(dyn)  # (B, nb * A, S)
+        score = beam_score.repeat_interleave(A, 1) + r_hat  # (B, nb * A)
         rank_in_beam = torch.argsort(
-            torch.argsort(-policy, dim=1, stable=True), dim=1
-        )  # (B * nb, A)
-        policy_rank = (
-            rank_in_beam.view(B, nb, A) * nb + torch.arange(nb, device=dev)[None, :, None]
-        ).view(B, nb * A)
+            torch.argsort(-policy, dim=2, stable=True), dim=2
+        )  # (B, nb, A)
+        policy_rank = (rank_in_beam * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
         first = (
-            actions.view(B, nb * A) if beam_first is None else beam_first.repeat_interleave(A, 1)
+            acts.reshape(B, nb * A) if beam_first is None else beam_first.repeat_interleave(A, 1)
         )
         keep = min(beams, nb * A)
-        idx = _rank_candidates(score, policy_rank, keep)  # (B, keep)
+        idx = _rank_candidates(score, policy_rank, keep)  # (B, keep) candidate = beam * A + action
         beam_first, beam_score = first.gather(1, idx), score.gather(1, idx)
         if depth == horizon - 1:
             break
-        flat = (torch.arange(B, device=dev)[:, None] * nb * A + idx).reshape(-1)  # (B * keep,)
-        beam_ctx = cand_ctx.select(flat)
-        prev_state = beam_state.repeat_interleave(A, 0)[flat]
-        pending = model.embed_transitions(
-            states=s_hat[flat][:, None],
-            prev_states=prev_state[:, None],
-            prev_actions=actions[flat][:, None],
-            prev_rewards=r_hat[flat][:, None],
-            prev_dones=torch.zeros(len(flat), 1, dtype=torch.bool, device=dev),
-            has_prev=torch.ones(len(flat), 1, dtype=torch.bool, device=dev),
-        )  # (B * keep, 1, D)
-        beam_state, nb = s_hat[flat], keep
-    return beam_first[:, 0]
+        # the kept candidates' paths: their beam's path + [T_j] + their own query-action token
+        j, a = idx // A, idx % A  # (B, keep)
+        anc = torch.zeros(B, keep, tree.n_tree, dtype=torch.bool)
+        anc[:, :, :base] = beam_anc[b_idx, j]
+        if beam_T is not None:
+            anc[b_idx, torch.arange(keep)[None], base + j * per_beam] = True
+        anc[b_idx, torch.arange(keep)[None], base + j * per_beam + (per_beam - A) + a] = True
+        prev_state = beam_state[b_idx, j]  # (B, keep, S)
+        next_state = s_hat[b_idx, idx]  # (B, keep, S)
+        beam_T = model.embed_transitions(
+            states=next_state,
+            prev_states=prev_state,
+            prev_actions=a,
+            prev_rewards=r_hat[b_idx, idx],
+            prev_dones=torch.zeros(B, keep, dtype=torch.bool),
+            has_prev=torch.ones(B, keep, dtype=torch.bool),
+        )  # (B, keep, D)
+        beam_state, beam_anc, nb = next_state, anc, keep
+    return beam_first[:, 0], beam_score[:, 0]
 
 
 @torch.no_grad()
@@ -118,10 +175,15 @@ def greedy_search(
         [mean[:, None], mean[:, None] + log_std.exp()[:, None] * z], dim=1
     )  # (B, n, A)
     cands = cands.clamp(low, high)
-    q = model.embed_query_actions(
-        states.repeat_interleave(samples, 0)[:, None], cands.reshape(B * samples, 1, A)
-    )  # (B * n, 1, D)
-    hidden = context.repeat(samples).append(q)
-    r_hat = model.dynamics(hidden)["reward_pred"].view(B, samples)
+    q = model.embed_query_actions(states[:, None].expand(B, samples, -1), cands)  # (B, n, D)
+    tree = _Tree(model, context)
+    hidden = tree.forward(
+        q,
+        torch.zeros(samples, dtype=torch.long),
+        torch.ones(samples, dtype=torch.bool),
+        torch.zeros(B, samples, 0, dtype=torch.bool),
+        torch.eye(samples, dtype=torch.bool),
+    )
+    r_hat = model.dynamics(hidden)["reward_pred"]  # (B, n)
     best = r_hat.argmax(1)  # (B,)
     return cands[torch.arange(B), best]

@@ -115,14 +115,15 @@ def rollout(
             dist = model.action_distribution(hidden)
             full = steps + 1 >= c.context_length  # the context holds K transitions
             if plan and full and c.discrete_actions:
-                action = beam_search(
+                action, _ = beam_search(
                     model,
                     ctx,
                     s[:, 0],
                     dist["action_logits"][:, 0],
                     min(c.plan_horizon, H - t),
                     c.plan_beams,
-                ).numpy()
+                )
+                action = action.numpy()
                 planned += 1
             elif plan and full and t >= H // 2:  # continuous: second half of each episode (ref)
                 action = greedy_search(

@@ -96,6 +96,11 @@ class ICRLModel(ICRLPreTrainedModel):
 
     # ------------------------------------------------------------------ encoders
     @property
+    def _dtype(self) -> torch.dtype:
+        # PreTrainedModel.dtype walks every parameter; this is called for every token of a rollout
+        return self.embed_transition.weight.dtype
+
+    @property
     def state_features(self) -> int:
         c = self.config
         return c.state_dim * c.state_bins if c.state_bins else c.state_dim
@@ -105,29 +110,29 @@ class ICRLModel(ICRLPreTrainedModel):
         bins = self.config.state_bins
         if bins:
             onehot = F.one_hot(states.long().clamp(0, bins - 1), bins)  # (..., S, bins)
-            return onehot.flatten(-2).to(self.dtype)  # (..., S * bins)
-        return states.to(self.dtype)
+            return onehot.flatten(-2).to(self._dtype)  # (..., S * bins)
+        return states.to(self._dtype)
 
     def encode_actions(self, actions: torch.Tensor) -> torch.Tensor:
         """(...) action ids -> (..., A) one-hot, or (..., A) float actions as they are."""
         if self.config.discrete_actions:
             return F.one_hot(
                 actions.long().clamp(0, self.config.action_dim - 1), self.config.action_dim
-            ).to(self.dtype)
-        return actions.to(self.dtype)
+            ).to(self._dtype)
+        return actions.to(self._dtype)
 
     # ------------------------------------------------------------------ pieces (used by planners too)
     def embed_transitions(
         self, states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
     ) -> torch.Tensor:
         """Transition tokens (B, T, D); see the module docstring for the layout."""
-        keep = has_prev.to(self.dtype).unsqueeze(-1)  # (B, T, 1): zero the missing previous step
+        keep = has_prev.to(self._dtype).unsqueeze(-1)  # (B, T, 1): zero the missing previous step
         feats = torch.cat(
             [
                 self.encode_states(prev_states) * keep,  # (B, T, S')
                 self.encode_actions(prev_actions) * keep,  # (B, T, A)
-                prev_rewards.to(self.dtype).unsqueeze(-1) * keep,  # (B, T, 1)
-                prev_dones.to(self.dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+                prev_rewards.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+                prev_dones.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
                 keep,  # (B, T, 1)
                 self.encode_states(states),  # (B, T, S')
             ],
@@ -140,10 +145,22 @@ class ICRLModel(ICRLPreTrainedModel):
         feats = torch.cat([self.encode_states(states), self.encode_actions(actions)], dim=-1)
         return self.embed_query_action(feats)  # (B, T, D)
 
-    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
-        """LlamaModel over token embeddings (B, L, D) -> (hidden (B, L, D), cache)."""
+    def run_backbone(
+        self,
+        inputs_embeds,
+        past_key_values=None,
+        position_ids=None,
+        use_cache=None,
+        attention_mask=None,
+    ):
+        """LlamaModel over token embeddings (B, L, D) -> (hidden (B, L, D), cache).
+
+        attention_mask: None (causal) or a boolean (B, 1, L, past + L) mask, True = may attend (the
+        planner's tree of imagined paths over a shared cached context).
+        """
         out = self.backbone(
             inputs_embeds=self.embed_dropout(inputs_embeds),
+            attention_mask=attention_mask,
             past_key_values=past_key_values,
             position_ids=position_ids,
             use_cache=use_cache,
@@ -275,15 +292,15 @@ class ICRLModel(ICRLPreTrainedModel):
         exact grid states.
         """
         c = self.config
-        reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self.dtype))
+        reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self._dtype))
         return_loss = F.mse_loss(
-            out["return_pred"][mask], returns[mask].to(self.dtype) / c.return_scale
+            out["return_pred"][mask], returns[mask].to(self._dtype) / c.return_scale
         )
         if c.state_bins:
             logits = out["next_state_logits"][mask]  # (N, S, bins)
             state_loss = F.cross_entropy(logits.flatten(0, 1), next_states[mask].long().flatten())
         else:
-            state_loss = F.mse_loss(out["next_state_pred"][mask], next_states[mask].to(self.dtype))
+            state_loss = F.mse_loss(out["next_state_pred"][mask], next_states[mask].to(self._dtype))
         return reward_loss + state_loss + return_loss
 
 

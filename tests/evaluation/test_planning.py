@@ -47,7 +47,14 @@ class ChainModel:
             -1,
         )
 
-    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
+    def run_backbone(
+        self,
+        inputs_embeds,
+        past_key_values=None,
+        position_ids=None,
+        use_cache=None,
+        attention_mask=None,
+    ):
         return inputs_embeds, past_key_values
 
     def action_distribution(self, hidden):
@@ -84,7 +91,7 @@ def plan(model, start: int, horizon: int, beams: int = 10) -> int:
     states = torch.tensor([[start]])
     ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
     logits = model.policy_logits[None]
-    return int(beam_search(model, ctx, states, logits, horizon, beams)[0])
+    return int(beam_search(model, ctx, states, logits, horizon, beams)[0][0])
 
 
 def test_beam_search_finds_the_best_plan_not_the_greedy_step():
@@ -112,7 +119,7 @@ def test_beam_search_batches_independent_streams():
     states = torch.tensor([[5], [7], [9]])
     ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
     logits = model.policy_logits.expand(3, 3)
-    got = beam_search(model, ctx, states, logits, horizon=4, beams=10).tolist()
+    got = beam_search(model, ctx, states, logits, horizon=4, beams=10)[0].tolist()
     # from 7 step right onto 8; from 9 step left onto 8
     assert got == [RIGHT, RIGHT, LEFT]
 
@@ -131,7 +138,14 @@ class BanditModel:
     def embed_query_actions(self, states, actions):
         return actions.float()
 
-    def run_backbone(self, inputs_embeds, past_key_values=None, position_ids=None, use_cache=None):
+    def run_backbone(
+        self,
+        inputs_embeds,
+        past_key_values=None,
+        position_ids=None,
+        use_cache=None,
+        attention_mask=None,
+    ):
         return inputs_embeds, past_key_values
 
     def dynamics(self, hidden):
@@ -149,3 +163,112 @@ def test_greedy_search_picks_the_candidate_with_the_highest_predicted_reward():
     # stream 0: some sample lands near 0.3 and beats the mean (0, 0); stream 1: the mean is optimal
     assert torch.all((best[0] - 0.3).abs() < 0.15) and not torch.allclose(best[0], mean[0])
     torch.testing.assert_close(best[1], mean[1])
+
+
+# ---------------------------------------------------------------------------- a real model
+@torch.no_grad()
+def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens):
+    """Reference: every candidate re-runs the backbone over its own linear token sequence (the
+    context window + its path, cut to the training window), as the reference code does per beam."""
+    A = logits.shape[-1]
+
+    def last_hidden(tokens, window_len):
+        seq = torch.cat(tokens, dim=1)[:, -window_len:]  # (1, L, D)
+        pos = torch.arange(seq.shape[1])[None]
+        return model.run_backbone(seq, position_ids=pos, use_cache=False)[0][:, -1:]
+
+    beams_ = [dict(path=[], state=state, score=0.0, first=None, policy=logits)]
+    for depth in range(horizon):
+        cands = []
+        for bi, beam in enumerate(beams_):
+            rank = torch.argsort(torch.argsort(-beam["policy"], stable=True))
+            for a in range(A):
+                q = model.embed_query_actions(beam["state"][None, None], torch.tensor([[a]]))
+                h = last_hidden([window, *beam["path"], q], max_tokens + 1)
+                dyn = model.dynamics(h)
+                r = float(dyn["reward_pred"][0, 0])
+                nxt = model.predicted_next_states(dyn)[0, 0]
+                cands.append(
+                    dict(
+                        score=beam["score"] + r,
+                        key=int(rank[a]) * len(beams_) + bi,
+                        beam=beam,
+                        a=a,
+                        r=r,
+                        nxt=nxt,
+                        q=q,
+                        first=a if beam["first"] is None else beam["first"],
+                    )
+                )
+        cands.sort(key=lambda c: c["key"])
+        cands.sort(key=lambda c: -c["score"])
+        cands = cands[:beams]
+        if depth == horizon - 1:
+            return cands[0]["first"], cands[0]["score"]
+        beams_ = []
+        for c in cands:
+            t = model.embed_transitions(
+                states=c["nxt"][None, None],
+                prev_states=c["beam"]["state"][None, None],
+                prev_actions=torch.tensor([[c["a"]]]),
+                prev_rewards=torch.tensor([[c["r"]]]),
+                prev_dones=torch.tensor([[False]]),
+                has_prev=torch.tensor([[True]]),
+            )
+            path = [*c["beam"]["path"], c["q"], t]
+            policy = model.action_distribution(last_hidden([window, *path], max_tokens))[
+                "action_logits"
+            ][0, 0]
+            beams_.append(
+                dict(path=path, state=c["nxt"], score=c["score"], first=c["first"], policy=policy)
+            )
+
+
+def _dicp_model(layers, context):
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.envs import get_spec
+    from lhf_hf.modeling import ICRLModel
+    from lhf_hf.training import model_config_for
+
+    cfg = model_config_for(
+        get_spec("darkroom"),
+        TrainConfig(dataset="-", objective="dicp", out="-", preset="tiny", context_length=context),
+        True,
+    )
+    cfg.num_hidden_layers = layers
+    torch.manual_seed(1)
+    model = ICRLModel(cfg).eval()
+    # sharpen the dynamics heads so that rewards and imagined states differ between candidates
+    with torch.no_grad():
+        model.reward_head.weight.mul_(20)
+        model.next_state_head.weight.mul_(20)
+    return model
+
+
+import pytest  # noqa: E402
+
+
+@pytest.mark.parametrize("layers, context, steps", [(1, 4, 12), (2, 12, 6)])
+def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps):
+    """The shared-context tree (one backbone call per depth) gives the per-candidate recompute's
+    choice and score.  One layer with a full window (the oldest context tokens drop out as paths
+    grow); two layers while the window is not yet full (keys of deeper layers are not recomputed)."""
+    model = _dicp_model(layers, context)
+    g = torch.Generator().manual_seed(0)
+    ctx = Context(model, use_cache=False)
+    for _ in range(steps):  # a context of random tokens (2 per transition for DICP)
+        ctx.append(torch.randn(1, 2, model.config.hidden_size, generator=g))
+    state = torch.tensor([[4, 4]])
+    logits = torch.randn(1, 5, generator=g)
+    for horizon, beams in [(1, 10), (3, 10), (4, 2)]:
+        want_a, want_score = naive_beam_search(
+            model, ctx.embeds, state[0], logits[0], horizon, beams, ctx.max_tokens
+        )
+        got_a, got_score = beam_search(model, ctx, state, logits, horizon, beams)
+        assert int(got_a[0]) == want_a, (horizon, beams)
+        assert abs(float(got_score[0]) - want_score) < 1e-4, (
+            horizon,
+            beams,
+            float(got_score[0]),
+            want_score,
+        )

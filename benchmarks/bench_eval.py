@@ -1,0 +1,128 @@
+"""In-context evaluation speed: sliding-window KV cache vs full recompute, and DICP planning cost.
+
+    python benchmarks/bench_eval.py [--episodes 12] [--model CKPT_DIR] [--json OUT]
+
+Targets (issue "evaluation", DESIGN.md 9), darkroom, paper preset, the 8 test tasks of split 0:
+- rollout env-steps/s with the sliding-window cache vs recomputing the window every step: >= 10x;
+- a DICP planning step (beam search, 10 beams, horizon 8) vs a model-free step: <= 5x.
+Both modes consume the same random stream; the script reports whether they took identical actions
+and, with both contexts fed the same tokens, how far their policies are apart (total variation).
+Without --model, randomly initialised paper-preset models are used (speed does not depend on the
+weights).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import torch
+
+from lhf_hf.configs import TrainConfig
+from lhf_hf.envs import get_spec, task_split
+from lhf_hf.evaluation import Context, make_task_batch, rollout
+from lhf_hf.modeling import ICRLModel
+from lhf_hf.training import model_config_for
+
+
+def paper_model(objective: str, seed: int = 0) -> ICRLModel:
+    cfg = model_config_for(
+        get_spec("darkroom"), TrainConfig(dataset="-", objective=objective, out="-"), True
+    )
+    torch.manual_seed(seed)
+    return ICRLModel(cfg).eval()
+
+
+def run(model, episodes: int, use_cache: bool, plan: bool = False):
+    _, test = task_split("darkroom", 0)
+    return rollout(
+        model,
+        make_task_batch("darkroom", test, 0, 0),
+        episodes,
+        seed=1,
+        plan=plan,
+        use_cache=use_cache,
+        progress=False,
+        record_actions=True,
+    )
+
+
+@torch.no_grad()
+def policy_distance(model, steps: int) -> dict:
+    """Feed identical random transition tokens to a cached and a recomputed context; TV distance."""
+    g = torch.Generator().manual_seed(0)
+    a, b = Context(model, True), Context(model, False)
+    tv = []
+    for _ in range(steps):
+        e = torch.randn(8, 1, model.config.hidden_size, generator=g)
+        pa = torch.softmax(model.action_distribution(a.append(e))["action_logits"][:, -1], -1)
+        pb = torch.softmax(model.action_distribution(b.append(e))["action_logits"][:, -1], -1)
+        tv.append(0.5 * (pa - pb).abs().sum(-1).max().item())
+    K = model.config.context_length
+    return {
+        "max_tv_before_full": max(tv[:K]),
+        "mean_tv_after_full": float(np.mean(tv[K:])),
+        "max_tv_after_full": max(tv[K:]),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--episodes", type=int, default=12)
+    p.add_argument("--model", default=None, help="a trained DICP checkpoint (default: random init)")
+    p.add_argument("--json", default=None)
+    args = p.parse_args()
+    out = {"episodes": args.episodes, "tasks": 8, "torch_threads": torch.get_num_threads()}
+    if args.model:
+        from lhf_hf.evaluation import load_model
+
+        ad = dicp = load_model(args.model)
+        out["model"] = args.model
+    else:
+        ad, dicp = paper_model("ad"), paper_model("dicp")
+    # 1. cache vs recompute (AD tokens; one token per step)
+    cached, full = run(ad, args.episodes, True), run(ad, args.episodes, False)
+    steps = cached.env_steps
+    out["cache"] = {
+        "env_steps_per_s_cache": steps / cached.wall_s,
+        "env_steps_per_s_recompute": steps / full.wall_s,
+        "speedup": full.wall_s / cached.wall_s,
+        "identical_actions": bool(np.array_equal(cached.actions, full.actions)),
+        "steps_until_first_difference": int(
+            np.argmax(np.any(cached.actions != full.actions, axis=0))
+            if not np.array_equal(cached.actions, full.actions)
+            else cached.actions.shape[1]
+        ),
+        **policy_distance(ad, 3 * ad.config.context_length),
+    }
+    print(json.dumps(out["cache"], indent=1))
+    # 2. planning vs model-free (DICP), timed over the steps where the context is full
+    K, H = dicp.config.context_length, 20
+    warm = (K + H - 1) // H  # episodes until the context is full
+    n = warm + 3
+    free = run(dicp, n, True)
+    t_free = free.wall_s
+    planned = run(dicp, n, True, plan=True)
+    base = run(dicp, warm, True)  # the shared part before planning starts
+    per_free = (t_free - base.wall_s) / ((n - warm) * H)
+    per_plan = (planned.wall_s - base.wall_s) / ((n - warm) * H)
+    out["planning"] = {
+        "model_free_step_ms": 1e3 * per_free,
+        "planning_step_ms": 1e3 * per_plan,
+        "ratio": per_plan / per_free,
+        "planned_steps": planned.planned_steps,
+        "beams": dicp.config.plan_beams,
+        "horizon": dicp.config.plan_horizon,
+    }
+    print(json.dumps(out["planning"], indent=1))
+    if args.json:
+        from lhf_hf.histories.io import write_json_atomic
+
+        write_json_atomic(out, args.json)
+
+
+if __name__ == "__main__":
+    main()
