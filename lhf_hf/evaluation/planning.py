@@ -103,7 +103,6 @@ def beam_search(
             embeds = q.reshape(B, nb * A, -1)
         else:
             embeds = torch.cat([beam_T[:, :, None], q], dim=2).reshape(B, nb * per_beam, -1)
-        n = nb * per_beam
         is_query = torch.ones(per_beam, dtype=torch.bool)
         offsets = torch.full((per_beam,), 2 * depth)
         if beam_T is not None:
