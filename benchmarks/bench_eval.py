@@ -74,8 +74,17 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=12)
     p.add_argument("--model", default=None, help="a trained DICP checkpoint (default: random init)")
     p.add_argument("--json", default=None)
+    p.add_argument("--env", default="darkroom", help="gridworld env id (all its test tasks)")
+    p.add_argument("--skip-planning", action="store_true")
     args = p.parse_args()
-    out = {"episodes": args.episodes, "tasks": 8, "torch_threads": torch.get_num_threads()}
+    global ENV
+    ENV = args.env
+    out = {
+        "env": ENV,
+        "episodes": args.episodes,
+        "tasks": len(task_split(ENV, 0)[1]),
+        "torch_threads": torch.get_num_threads(),
+    }
     if args.model:
         from lhf_hf.evaluation import load_model
 
@@ -99,8 +108,14 @@ def main() -> None:
         **policy_distance(ad, 3 * ad.config.context_length),
     }
     print(json.dumps(out["cache"], indent=1))
+    if args.skip_planning:
+        if args.json:
+            from lhf_hf.histories.io import write_json_atomic
+
+            write_json_atomic(out, args.json)
+        return
     # 2. planning vs model-free (DICP), timed over the steps where the context is full
-    K, H = dicp.config.context_length, 20
+    K, H = dicp.config.context_length, get_spec(ENV).horizon
     warm = (K + H - 1) // H  # episodes until the context is full
     n = warm + 3
     free = run(dicp, n, True)
