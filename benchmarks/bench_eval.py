@@ -90,6 +90,9 @@ def main() -> None:
 
         ad = dicp = load_model(args.model)
         out["model"] = args.model
+        ENV = ad.config.env_id
+        out["env"], out["tasks"] = ENV, len(task_split(ENV, 0)[1])
+        args.skip_planning |= ad.config.objective != "dicp"
     else:
         ad, dicp = paper_model("ad"), paper_model("dicp")
     # 1. cache vs recompute (AD tokens; one token per step)

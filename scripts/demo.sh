@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# The main job on the embedded default: a tour of the environments with an oracle rollout per env.
-# then a small Darkroom collection with its card and plot, filtered with LHF.
-# (Later issues grow this into the quick end-to-end Darkroom reproduction.)
+# The main job on the embedded default: a tour of the environments with an oracle rollout per env,
+# then a quick Darkroom end to end: a small collection with its card and plot, LHF filtering, AD and
+# DICP trained with and without LHF (lightweight models, a few hundred steps), in-context evaluation
+# on the 8 unseen goals and the comparison table.  Local folders stand in for the hub.
+# (The paper-scale reproduction is `lhf reproduce`, a later issue.)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/_venv.sh "metaworld"
@@ -17,5 +19,26 @@ lhf collect darkroom --out data/demo-darkroom --tasks 10,20,30,50 --histories 20
 echo
 echo "[lhf] LHF filtering of that dataset (linear, lambda = 1), materialised as a new dataset"
 lhf filter data/demo-darkroom --out data/demo-darkroom-selection --materialize data/demo-darkroom-lhf --overwrite
+echo
+echo "[lhf] AD and DICP, without and with the LHF selection (lightweight preset, 300 steps each)"
+for obj in ad dicp; do
+  lhf train --dataset data/demo-darkroom --objective "$obj" --out "runs/demo-$obj" --preset lightweight \
+    --max-steps 300 --batch-size 32 --lr 3e-3 --logging-steps 100 --save-steps 300 --overwrite
+  lhf train --dataset data/demo-darkroom --selection data/demo-darkroom-selection --objective "$obj" \
+    --out "runs/demo-$obj-lhf" --preset lightweight --max-steps 300 --batch-size 32 --lr 3e-3 \
+    --logging-steps 100 --save-steps 300 --overwrite
+done
+echo
+echo "[lhf] in-context evaluation on the 8 unseen goals, 20 episodes (DICP with planning)"
+lhf evaluate --model runs/demo-ad --episodes 20 --out runs/demo-eval/ad
+lhf evaluate --model runs/demo-ad-lhf --episodes 20 --out runs/demo-eval/ad-lhf
+lhf evaluate --model runs/demo-dicp --episodes 20 --plan --out runs/demo-eval/dicp
+lhf evaluate --model runs/demo-dicp-lhf --episodes 20 --plan --out runs/demo-eval/dicp-lhf
+echo
+lhf compare --baseline runs/demo-eval/ad runs/demo-eval/dicp --lhf runs/demo-eval/ad-lhf runs/demo-eval/dicp-lhf \
+  --out runs/demo-eval/compare
+echo
 echo "[lhf] done: data/demo-darkroom/README.md (card), data/demo-darkroom/meta/learning_curve.png,"
-echo "      data/demo-darkroom-selection/selection.png (what LHF kept), data/demo-darkroom-lhf (filtered dataset)"
+echo "      data/demo-darkroom-selection/selection.png (what LHF kept), data/demo-darkroom-lhf (filtered dataset),"
+echo "      runs/demo-*/README.md (model cards), runs/demo-eval/*/eval_curve.png, runs/demo-eval/compare/compare.png"
+echo "      (a 4-task, 300-step demo: the numbers show the pipeline, not the paper's effect)"
