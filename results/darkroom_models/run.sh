@@ -20,11 +20,11 @@ mkdir -p runs
 ( train dicp "" dicp; train dicp "--selection sel/darkroom-lhf" dicp-lhf ) &
 wait
 for m in ad ad-lhf dpt dpt-lhf dicp dicp-lhf; do
-  lhf evaluate --model "runs/darkroom-$m" --episodes 100 --out "$OUT/eval/$m" > "$OUT/eval-$m.log" 2>&1 &
+  lhf evaluate --model "runs/darkroom-$m" --episodes 100 --out "$OUT/eval/$m" > "runs/eval-$m.log" 2>&1 &
 done
 wait
 for m in dicp dicp-lhf; do
-  lhf evaluate --model "runs/darkroom-$m" --episodes 100 --plan --out "$OUT/eval/$m-plan" > "$OUT/eval-$m-plan.log" 2>&1 &
+  lhf evaluate --model "runs/darkroom-$m" --episodes 100 --plan --out "$OUT/eval/$m-plan" > "runs/eval-$m-plan.log" 2>&1 &
 done
 wait
 lhf compare --baseline $OUT/eval/{ad,dpt,dicp,dicp-plan} --lhf $OUT/eval/{ad-lhf,dpt-lhf,dicp-lhf,dicp-lhf-plan} --out $OUT/compare
