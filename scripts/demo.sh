@@ -13,9 +13,13 @@ echo
 echo "[lhf] oracle on the test tasks of split 0 (gridworlds: exact oracle; Meta-World: scripted, goal revealed)"
 lhf envs --oracle --split-seed 0 --metaworld-tasks 2
 echo
-echo "[lhf] a small Darkroom collection (4 tasks x 20 histories x 600 transitions, noisy protocol)"
-lhf collect darkroom --out data/demo-darkroom --tasks 10,20,30,50 --histories 20 --steps 600 \
+echo "[lhf] a small SB3 Darkroom collection (4 tasks x 20 histories x 600 transitions, noisy protocol)"
+lhf collect darkroom --out data/demo-darkroom-sb3 --tasks 10,20,30,50 --histories 20 --steps 600 \
   --protocol noisy --workers 2 --overwrite
+echo
+echo "[lhf] the 73 train goals of split 0 with the batched PPO collector (20 histories x 1,000 transitions, noisy)"
+lhf collect darkroom --out data/demo-darkroom --tasks train --histories 20 --steps 1000 \
+  --protocol noisy --collector batched --overwrite
 echo
 echo "[lhf] LHF filtering of that dataset (linear, lambda = 1), materialised as a new dataset"
 lhf filter data/demo-darkroom --out data/demo-darkroom-selection --materialize data/demo-darkroom-lhf --overwrite
@@ -38,7 +42,7 @@ echo
 lhf compare --baseline runs/demo-eval/ad runs/demo-eval/dicp --lhf runs/demo-eval/ad-lhf runs/demo-eval/dicp-lhf \
   --out runs/demo-eval/compare
 echo
-echo "[lhf] done: data/demo-darkroom/README.md (card), data/demo-darkroom/meta/learning_curve.png,"
+echo "[lhf] done: data/demo-darkroom{,-sb3}/README.md (cards), data/demo-darkroom/meta/learning_curve.png,"
 echo "      data/demo-darkroom-selection/selection.png (what LHF kept), data/demo-darkroom-lhf (filtered dataset),"
 echo "      runs/demo-*/README.md (model cards), runs/demo-eval/*/eval_curve.png, runs/demo-eval/compare/compare.png"
-echo "      (a 4-task, 300-step demo: the numbers show the pipeline, not the paper's effect)"
+echo "      (one run of 300 steps: the numbers show the pipeline, not the paper's effect)"
