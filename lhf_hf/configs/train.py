@@ -6,6 +6,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+# Mirrors lhf_hf.modeling (kept here so that configs import without transformers; a test checks
+# that both agree).
 OBJECTIVES = ("ad", "dpt", "dicp")
 MODEL_PRESETS = ("paper", "lightweight", "tiny")
 

@@ -10,6 +10,8 @@ their labels:
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 import torch
 
@@ -18,7 +20,7 @@ from lhf_hf.modeling import ICRLConfig
 from .windows import HistoryArrays
 
 
-class WindowCollator:
+class WindowCollator(ABC):
     """Base: the transition-token inputs and the label mask; subclasses add ``labels``."""
 
     def __init__(self, arrays: HistoryArrays, config: ICRLConfig):
@@ -54,8 +56,9 @@ class WindowCollator:
         batch.update(self.labels(rows))
         return batch
 
+    @abstractmethod
     def labels(self, rows: np.ndarray) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
+        """The objective's targets (and extra inputs) for windows of frame ``rows`` (B, K)."""
 
 
 class ADCollator(WindowCollator):

@@ -255,3 +255,11 @@ def test_dicp_forward_needs_actions():
     batch.pop("actions")
     with pytest.raises(ValueError, match="actions"):
         model_for(config)(**batch)
+
+
+def test_train_config_lists_match_the_model_family():
+    from lhf_hf.configs import train as train_config
+    from lhf_hf.modeling import OBJECTIVES, PRESETS
+
+    assert train_config.OBJECTIVES == OBJECTIVES
+    assert set(train_config.MODEL_PRESETS) == set(PRESETS)
