@@ -15,8 +15,7 @@ hidden states of newly appended tokens.
   scratch, exactly the training distribution (a window of K transitions); the reference code's
   behaviour and the baseline of the cache benchmark.
 
-``repeat`` / ``select`` branch the batch (planning: beams x candidate actions) without touching the
-original.
+``snapshot`` hands a planner the window's cache without letting it change the context.
 """
 
 from __future__ import annotations
@@ -87,30 +86,3 @@ class Context:
         pos = torch.arange(L).unsqueeze(0).expand(self.embeds.shape[0], L)
         _, cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
         return cache, L, L
-
-    # ------------------------------------------------------------------ branching
-    def _copy(self) -> Context:
-        other = Context(self.model, self.use_cache, self.max_tokens)
-        other.pos, other.length = self.pos, self.length
-        return other
-
-    def _map(self, fn) -> Context:
-        other = self._copy()
-        if self.use_cache:
-            if self.cache is not None:
-                other.cache = DynamicCache(
-                    ddp_cache_data=[
-                        (fn(layer.keys), fn(layer.values)) for layer in self.cache.layers
-                    ]
-                )
-        elif self.embeds is not None:
-            other.embeds = fn(self.embeds)
-        return other
-
-    def repeat(self, n: int) -> Context:
-        """A branch with every stream repeated ``n`` times (stream-major: b0 b0 .. b1 b1 ..)."""
-        return self._map(lambda t: t.repeat_interleave(n, dim=0))
-
-    def select(self, index: torch.Tensor) -> Context:
-        """A branch with the streams ``index`` (B',)."""
-        return self._map(lambda t: t[index])
