@@ -25,20 +25,22 @@ from lhf_hf.evaluation import Context, make_task_batch, rollout
 from lhf_hf.modeling import ICRLModel
 from lhf_hf.training import model_config_for
 
+ENV = "darkroom"  # set from --env
+
 
 def paper_model(objective: str, seed: int = 0) -> ICRLModel:
     cfg = model_config_for(
-        get_spec("darkroom"), TrainConfig(dataset="-", objective=objective, out="-"), True
+        get_spec(ENV), TrainConfig(dataset="-", objective=objective, out="-"), True
     )
     torch.manual_seed(seed)
     return ICRLModel(cfg).eval()
 
 
 def run(model, episodes: int, use_cache: bool, plan: bool = False):
-    _, test = task_split("darkroom", 0)
+    _, test = task_split(ENV, 0)
     return rollout(
         model,
-        make_task_batch("darkroom", test, 0, 0),
+        make_task_batch(ENV, test, 0, 0),
         episodes,
         seed=1,
         plan=plan,
