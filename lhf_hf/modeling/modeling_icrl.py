@@ -155,8 +155,9 @@ class ICRLModel(ICRLPreTrainedModel):
     ):
         """LlamaModel over token embeddings (B, L, D) -> (hidden (B, L, D), cache).
 
-        attention_mask: None (causal) or a boolean (B, 1, L, past + L) mask, True = may attend (the
-        planner's tree of imagined paths over a shared cached context).
+        attention_mask: None (causal) or a custom (B, 1, L, past + L) mask passed to attention as is:
+        boolean (True = may attend) or additive float (the planner's tree of imagined paths over a
+        shared cached context).
         """
         out = self.backbone(
             inputs_embeds=self.embed_dropout(inputs_embeds),

@@ -7,8 +7,6 @@ Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with 
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import shutil
 import time
@@ -111,16 +109,10 @@ def check_model_env(config: ICRLConfig, spec) -> None:
 
 
 # ---------------------------------------------------------------------------- selection
-def file_fingerprint(*paths: Path) -> str:
-    h = hashlib.sha256()
-    for p in paths:
-        h.update(Path(p).read_bytes())
-    return h.hexdigest()
-
-
 def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.ndarray, dict]:
     """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
     from lhf_hf.filtering.select import SCORES_FILE, load_selection
+    from lhf_hf.histories.io import sha256_file
 
     sel = load_selection(selection_dir)
     fp = sel.source.get("fingerprint")
@@ -136,7 +128,7 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
     out = np.array([counts.get(int(h), 0) for h in arrays.history_index], np.int64)
     info = {
         "path": str(Path(selection_dir).resolve()),
-        "fingerprint": file_fingerprint(Path(selection_dir) / SCORES_FILE),
+        "fingerprint": sha256_file(Path(selection_dir) / SCORES_FILE),
         "filter": sel.config.to_dict(),
         "selected_unique": int((out > 0).sum()),
         "total_count": int(out.sum()),
@@ -270,12 +262,3 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     plot_loss(trainer.state.log_history, out / LOSS_PLOT)
     write_model_card(out, trainer.model.config, provenance)
     return out
-
-
-def load_train_config(checkpoint: str | Path) -> dict:
-    path = Path(checkpoint) / TRAIN_CONFIG_FILE
-    if not path.exists():
-        raise FileNotFoundError(
-            f"{checkpoint} has no {TRAIN_CONFIG_FILE} (not made by `lhf train`)"
-        )
-    return json.loads(path.read_text())
