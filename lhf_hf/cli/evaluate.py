@@ -10,7 +10,11 @@ COMPARE_HELP = "compare baseline and LHF evaluation runs: relative enhancement E
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("evaluate", help=HELP, description=HELP)
-    p.add_argument("--model", required=True, help="checkpoint folder (from `lhf train`)")
+    p.add_argument(
+        "--model",
+        required=True,
+        help="checkpoint folder (`lhf train`) or Hub model repo ORG/NAME[@REV]",
+    )
     p.add_argument("--env", default=None, help="env id (default: the model's)")
     p.add_argument("--split-seed", type=int, default=None, help="default: the training dataset's")
     p.add_argument("--tasks", default="test", help="test (default), train, or indices 0,3,7")

@@ -12,7 +12,7 @@ HELP = (
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("filter", help=HELP, description=HELP)
-    p.add_argument("dataset", help="history dataset folder")
+    p.add_argument("dataset", help="history dataset folder or Hub dataset repo ORG/NAME[@REV]")
     p.add_argument(
         "--out", required=True, help="selection folder (selection.parquet, filter_config.json, PNG)"
     )

@@ -18,8 +18,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
             "-m lhf_hf train ...`."
         ),
     )
-    p.add_argument("--dataset", required=True, help="history dataset folder")
-    p.add_argument("--selection", default=None, help="LHF selection folder (from `lhf filter`)")
+    p.add_argument(
+        "--dataset", required=True, help="history dataset folder or Hub repo id ORG/NAME[@REV]"
+    )
+    p.add_argument(
+        "--selection", default=None, help="LHF selection folder (`lhf filter`) or Hub repo id"
+    )
     p.add_argument("--objective", required=True, choices=["ad", "dpt", "dicp"])
     p.add_argument("--out", required=True, help="output folder (checkpoints, model, card)")
     p.add_argument("--preset", default="paper", choices=["paper", "lightweight", "tiny"])
@@ -35,6 +39,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--save-steps", type=int, default=500)
     p.add_argument("--logging-steps", type=int, default=50)
+    p.add_argument(
+        "--push-to-hub",
+        metavar="ORG/NAME",
+        default=None,
+        help="push checkpoints (during training) and the final model with its card to this model repo",
+    )
+    p.add_argument(
+        "--hub-private", action="store_true", help="create the --push-to-hub repo private"
+    )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
     g.add_argument("--overwrite", action="store_true", help="start afresh in an existing --out")
@@ -64,8 +77,12 @@ def run(args: argparse.Namespace) -> int:
         logging_steps=args.logging_steps,
         resume=args.resume,
         overwrite=args.overwrite,
+        push_to_hub=args.push_to_hub,
+        hub_private=args.hub_private,
     )
     out = train(cfg)
     if os.environ.get("RANK", "0") == "0":  # one line under accelerate launch, not one per process
         print(f"model: {out}  (card: {out}/README.md, config: {out}/train_config.json)")
+        if cfg.push_to_hub:
+            print(f"pushed to the model repo {cfg.push_to_hub}")
     return 0

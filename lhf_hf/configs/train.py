@@ -33,6 +33,9 @@ class TrainConfig:
     save_steps: checkpoint interval (resumable with ``resume``); logging_steps: loss log interval.
     resume: continue from the last checkpoint in ``out``.
     overwrite: start afresh in an ``out`` that already holds checkpoints or a model.
+    push_to_hub: a model repo id ``ORG/NAME``: Trainer pushes every saved checkpoint's weights
+        there during training and the final folder (weights, config, train config, card) at the end.
+    hub_private: create that repo private.
     """
 
     dataset: str
@@ -56,6 +59,8 @@ class TrainConfig:
     logging_steps: int = 50
     resume: bool = False
     overwrite: bool = False
+    push_to_hub: str | None = None
+    hub_private: bool = False
 
     def __post_init__(self) -> None:
         def bad(field: str, why: str):
@@ -88,6 +93,10 @@ class TrainConfig:
         for name in ("beta1", "beta2"):
             if not 0 <= getattr(self, name) < 1:
                 raise bad(name, "must be in [0, 1)")
+        if self.push_to_hub is not None:
+            from lhf_hf.hub import validate_repo_id
+
+            validate_repo_id(self.push_to_hub)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -23,8 +23,11 @@ def load_model(path: str):
     from transformers import AutoConfig, AutoModel
 
     import lhf_hf.modeling  # noqa: F401  (registers lhf_icrl)
+    from lhf_hf.hub import resolve
 
-    p = Path(path)
+    p = resolve(
+        path, "model", "model checkpoint"
+    )  # a local folder, or a Hub model repo ORG/NAME[@REVISION]
     if not (p / "config.json").exists():
         raise FileNotFoundError(
             f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
@@ -66,9 +69,11 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     from lhf_hf.envs import get_spec
     from lhf_hf.histories.io import write_json_atomic
     from lhf_hf.histories.writer import library_versions
+    from lhf_hf.hub import is_hub_snapshot, resolve, source_of
     from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 
-    model = load_model(cfg.model)
+    model_dir = resolve(cfg.model, "model", "model checkpoint")
+    model = load_model(str(model_dir))
     mc = model.config
     env_id = cfg.env_id or mc.env_id
     if env_id is None:
@@ -81,7 +86,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
         raise ValueError(
             f"--plan needs a model with dynamics heads (objective dicp); {cfg.model} is {mc.objective!r}"
         )
-    train_cfg_path = Path(cfg.model) / TRAIN_CONFIG_FILE
+    train_cfg_path = model_dir / TRAIN_CONFIG_FILE
     train_cfg = json.loads(train_cfg_path.read_text()) if train_cfg_path.exists() else None
     split_seed = cfg.split_seed
     if split_seed is None:
@@ -105,7 +110,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
         "tasks": tasks,
         "objective": mc.objective,
         "model": {
-            "path": str(Path(cfg.model).resolve()),
+            "path": source_of(cfg.model, model_dir),
             "objective": mc.objective,
             "selection": (train_cfg or {}).get("selection"),
             "dataset": (train_cfg or {}).get("dataset"),
@@ -130,7 +135,8 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
         title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, in context",
         optimal=optimal,
     )
-    _add_to_model_card(Path(cfg.model), results)
+    if not is_hub_snapshot(model_dir):  # never write into the Hub cache; push the card instead
+        _add_to_model_card(model_dir, results)
     return results
 
 

@@ -7,8 +7,10 @@ from pathlib import Path
 
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
+from lhf_hf.histories.io import write_text_atomic
 from lhf_hf.histories.reader import load_histories
 
+from .card import render_selection_card
 from .materialize import materialize
 from .plots import plot_selection
 from .select import CONFIG_FILE, PLOT_FILE, filter_histories
@@ -37,6 +39,7 @@ def run_filter(
     returns = ds.by_history(C.RETURNS)
     summary = {**selection.summary(returns), "selection_seconds": round(seconds, 4)}
     selection.save(out, summary)
+    write_text_atomic(render_selection_card(out), out / C.CARD_PATH)
     label = (
         config.strategy
         if config.strategy in ("none", "top-fraction")

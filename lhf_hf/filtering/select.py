@@ -256,8 +256,11 @@ class Selection:
 
 
 def load_selection(path: str | Path) -> Selection:
-    """Read a selection folder written by ``Selection.save`` / ``lhf filter``."""
-    path = Path(path)
+    """Read a selection folder written by ``Selection.save`` / ``lhf filter``, or a Hub dataset repo
+    ``ORG/NAME[@REVISION]`` that holds one (pushed with ``lhf push``)."""
+    from lhf_hf.hub import resolve
+
+    path = resolve(path, "dataset", "selection")
     for f in (SCORES_FILE, CONFIG_FILE):
         if not (path / f).exists():
             raise FileNotFoundError(
@@ -279,7 +282,7 @@ def filter_histories(ds, config: FilterConfig) -> Selection:
     scored = score_histories(ds.histories, config.lam, config.r_max, ds.env_id)
     table = resample_scored(scored, config)
     source = {
-        "path": str(Path(ds.root).resolve()),
+        "path": getattr(ds, "source", str(Path(ds.root).resolve())),
         "env_id": ds.env_id,
         "fingerprint": ds.fingerprint,
         "histories_fingerprint": histories_fingerprint(ds),

@@ -56,6 +56,8 @@ class HistoryDataset:
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
+        #: Where it came from: the absolute folder, or ``org/name@commit`` when loaded from the Hub.
+        self.source = str(self.root.resolve())
         info_file = self.root / C.INFO_PATH
         if not self.root.is_dir():
             raise FileNotFoundError(f"no dataset folder at {self.root}")
@@ -189,8 +191,18 @@ class HistoryDataset:
 
 
 def load_histories(path: str | Path) -> HistoryDataset:
-    """Open a learning-history dataset folder (LeRobot v3.0 layout + lhf tables)."""
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"no dataset at {path!r}")
-    return HistoryDataset(p)
+    """Open a learning-history dataset (LeRobot v3.0 layout + lhf tables): a local folder, or a Hub
+    dataset repo ``ORG/NAME[@REVISION]`` (fetched with ``snapshot_download``, then read locally)."""
+    from lhf_hf.hub import resolve, source_of
+
+    root = resolve(path, "dataset", "dataset")
+    try:
+        ds = HistoryDataset(root)
+    except DatasetFormatError as exc:
+        if root == Path(path).expanduser():
+            raise
+        raise DatasetFormatError(
+            f"the dataset repo {path} is not a learning-history dataset in the lhf layout: {exc}"
+        ) from None
+    ds.source = source_of(path, root)
+    return ds

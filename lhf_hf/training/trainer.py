@@ -34,7 +34,25 @@ MAX_SAMPLER_DRAWS = 1 << 24
 
 
 class WindowTrainer(Trainer):
-    """Trainer that draws windows uniformly with replacement (every history copy equally often)."""
+    """Trainer that draws windows uniformly with replacement (every history copy equally often).
+
+    With ``push_to_hub`` the final push carries the lhf model card (``lhf_card``: the config and
+    provenance, set by ``train``) instead of Trainer's generic one.
+    """
+
+    lhf_card: tuple | None = None
+
+    def create_model_card(self, *args, **kwargs):
+        if self.lhf_card is None or not self.is_world_process_zero():
+            return None
+        from .card import render_model_card
+
+        config, provenance = self.lhf_card
+        from lhf_hf.histories.io import write_text_atomic
+
+        text = render_model_card(config, provenance, load_path=self.args.hub_model_id)
+        write_text_atomic(text, Path(self.args.output_dir) / "README.md")
+        return None
 
     def _get_train_sampler(self, train_dataset=None):
         ds = train_dataset if train_dataset is not None else self.train_dataset
@@ -113,8 +131,10 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
     """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
     from lhf_hf.filtering.select import SCORES_FILE, load_selection
     from lhf_hf.histories.io import sha256_file
+    from lhf_hf.hub import resolve, source_of
 
-    sel = load_selection(selection_dir)
+    local = resolve(selection_dir, "dataset", "selection")
+    sel = load_selection(local)
     fp = sel.source.get("fingerprint")
     if fp != ds.fingerprint:
         raise ValueError(
@@ -127,8 +147,8 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
         raise ValueError(f"the selection names {len(unknown)} histories that {ds.root} lacks")
     out = np.array([counts.get(int(h), 0) for h in arrays.history_index], np.int64)
     info = {
-        "path": str(Path(selection_dir).resolve()),
-        "fingerprint": sha256_file(Path(selection_dir) / SCORES_FILE),
+        "path": source_of(selection_dir, local),
+        "fingerprint": sha256_file(local / SCORES_FILE),
         "filter": sel.config.to_dict(),
         "selected_unique": int((out > 0).sum()),
         "total_count": int(out.sum()),
@@ -187,6 +207,12 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         dataloader_num_workers=0,
         ddp_find_unused_parameters=False,
         use_cpu=not torch.cuda.is_available(),
+        # Trainer pushes each saved checkpoint's weights as it goes ("every_save"); `train` pushes
+        # the final folder with the lhf card at the end.
+        push_to_hub=cfg.push_to_hub is not None,
+        hub_model_id=cfg.push_to_hub,
+        hub_strategy="every_save",
+        hub_private_repo=cfg.hub_private if cfg.push_to_hub else None,
     )
     if args.world_size != world:
         raise RuntimeError(f"expected {world} processes, accelerate set up {args.world_size}")
@@ -200,7 +226,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
     provenance = {
         "train": cfg.to_dict(),
         "dataset": {
-            "path": str(Path(cfg.dataset).resolve()),
+            "path": ds.source,
             "env_id": ds.env_id,
             "split_seed": int(ds.lhf.get("split_seed", 0)),
             "fingerprint": ds.fingerprint,
@@ -261,4 +287,9 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
 
     plot_loss(trainer.state.log_history, out / LOSS_PLOT)
     write_model_card(out, trainer.model.config, provenance)
+    if cfg.push_to_hub:
+        trainer.lhf_card = (trainer.model.config, provenance)
+        trainer.push_to_hub(
+            commit_message=f"lhf train: final model, step {trainer.state.global_step}"
+        )
     return out

@@ -1,0 +1,55 @@
+"""The card (README.md) of an LHF selection folder, from ``dataset_cards/selection_card.md``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .select import CONFIG_FILE, SCORES_FILE, SELECTION_FILE
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.3f}"
+
+
+def render_selection_card(path: str | Path, load_path: str | None = None) -> str:
+    """Card text of the selection folder ``path``; its snippets load it from ``load_path``."""
+    from huggingface_hub import DatasetCard, DatasetCardData
+
+    from lhf_hf.histories.card import template_path
+
+    path = Path(path)
+    meta = json.loads((path / CONFIG_FILE).read_text())
+    flt, src, summary = meta["filter"], meta["source"], meta.get("summary", {})
+    env_id = src.get("env_id", "?")
+    label = (
+        f"LHF {flt['strategy']}" if flt["strategy"] in ("linear", "softmax") else flt["strategy"]
+    )
+    card_data = DatasetCardData(
+        license="apache-2.0",
+        pretty_name=f"{env_id} learning histories: {label} selection (lambda {flt['lam']})",
+        tags=["lhf", "in-context-rl", "learning-history-filtering", env_id],
+        task_categories=["reinforcement-learning"],
+        configs=[
+            {"config_name": "default", "data_files": SELECTION_FILE},
+            {"config_name": "scores", "data_files": SCORES_FILE},
+        ],
+    )
+    return DatasetCard.from_template(
+        card_data,
+        template_path=str(template_path("selection_card.md")),
+        source=src.get("path", "?"),
+        env_id=env_id,
+        strategy=flt["strategy"],
+        lam=flt["lam"],
+        alpha=flt["alpha"] if flt["strategy"] == "softmax" else "-",
+        seed=flt["seed"],
+        total=summary.get("histories", src.get("total_histories", "?")),
+        kept=summary.get("selected_unique", "?"),
+        max_count=summary.get("max_count", "?"),
+        mean_source=_fmt(summary.get("mean_return_source")),
+        mean_selection=_fmt(summary.get("mean_return_selection")),
+        fingerprint=str(src.get("fingerprint", "?"))[:16],
+        versions=", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()),
+        load_path=load_path or str(path.resolve()),
+    ).content

@@ -1,0 +1,345 @@
+"""Hub round trips (issue 7), all on 127.0.0.1: uploads go to the protocol fake (fake_hub.py), reads
+go through olah serving the very git repos the fake wrote.  Every client runs in its own process
+with HF_ENDPOINT / HF_HOME / HF_HUB_DISABLE_XET set before any import and a guard that aborts on
+any non-loopback connection (exit code 97)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+pytestmark = pytest.mark.hub
+
+LOOPBACK_VIOLATION = 97
+
+
+def _ok(proc: subprocess.CompletedProcess) -> str:
+    assert proc.returncode != LOOPBACK_VIOLATION, (
+        f"a request left 127.0.0.1:\n{proc.stderr[-3000:]}"
+    )
+    assert proc.returncode == 0, (
+        f"rc={proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    )
+    return proc.stdout
+
+
+def _fails(proc: subprocess.CompletedProcess, *needles: str) -> str:
+    assert proc.returncode != LOOPBACK_VIOLATION, (
+        f"a request left 127.0.0.1:\n{proc.stderr[-3000:]}"
+    )
+    assert proc.returncode != 0, proc.stdout[-2000:]
+    for n in needles:
+        assert n in proc.stderr, f"{n!r} not in:\n{proc.stderr[-3000:]}"
+    return proc.stderr
+
+
+def _last_json(stdout: str) -> dict:
+    return json.loads(stdout.strip().splitlines()[-1])
+
+
+def _git(repo, *args) -> str:
+    return subprocess.run(
+        ["git", "-C", str(repo), *args], capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
+CLI = "import sys\nfrom lhf_hf.cli.main import main\nsys.exit(main(sys.argv[1:]))\n"
+
+PUSH = """
+import json, sys
+from lhf_hf.hub import push
+print(json.dumps(push(sys.argv[1], sys.argv[2])))
+"""
+
+
+def _card_meta(text: str) -> dict:
+    return yaml.safe_load(text.split("---")[1])
+
+
+@pytest.fixture(scope="module")
+def checkpoint(small_darkroom_batched, tmp_path_factory):
+    """A selection and a tiny AD model trained with it, both local."""
+    from lhf_hf.configs import FilterConfig, TrainConfig
+    from lhf_hf.filtering.run import run_filter
+    from lhf_hf.training import train
+
+    root = tmp_path_factory.mktemp("artifacts")
+    run_filter(small_darkroom_batched.root, root / "sel", FilterConfig(), progress=False)
+    cfg = TrainConfig(
+        dataset=str(small_darkroom_batched.root),
+        selection=str(root / "sel"),
+        objective="ad",
+        out=str(root / "ad"),
+        preset="tiny",
+        max_steps=4,
+        batch_size=4,
+        save_steps=4,
+        logging_steps=2,
+    )
+    train(cfg)
+    return root
+
+
+# ---------------------------------------------------------------------------- datasets
+def test_history_dataset_round_trip(small_darkroom_batched, fake_hub, olah, hub_client, tmp_path):
+    ds = small_darkroom_batched
+    repo = "lhf-test/darkroom-small"
+    out = _ok(hub_client(fake_hub.endpoint, CLI, "push", str(ds.root), "--repo-id", repo))
+    result = json.loads(out[: out.rindex("}") + 1])
+    assert result["kind"] == "histories" and result["tag"] == "v3.0"
+
+    # What the fake received, as git: one commit on top of the Hub's initial one, tagged v3.0.
+    git_repo = fake_hub.repo_path("datasets", *repo.split("/"))
+    assert _git(git_repo, "rev-list", "--count", "main") == "2"
+    assert _git(git_repo, "rev-parse", "v3.0^{commit}") == _git(git_repo, "rev-parse", "main")
+    assert _git(git_repo, "rev-parse", "main") == result["commit"]
+    card = (git_repo / "README.md").read_text()
+    meta = _card_meta(card)
+    assert {"LeRobot", "lhf", "in-context-rl"} <= set(meta["tags"])
+    assert [c["config_name"] for c in meta["configs"]] == ["default", "episodes", "histories"]
+    assert f'load_dataset("{repo}", split="train")' in card  # snippets name the repo, not a path
+    assert str(ds.root) not in card
+
+    # Read back through olah with datasets, and with load_histories.
+    load = f"""
+import json
+import datasets
+import pyarrow.parquet as pq
+from lhf_hf.histories import load_histories
+out = {{}}
+# At the codebase-version tag, as LeRobot loads it.  (On "main", datasets also asks the Hub's
+# dataset viewer at datasets-server.<endpoint host> for exported infos: a DNS lookup that would
+# leave this machine, so the loopback guard would stop it.)
+for name in ("default", "episodes", "histories"):
+    d = datasets.load_dataset("{repo}", name, split="train", revision="v3.0")
+    d.data.table.to_pandas().to_parquet(f"{{name}}.parquet")
+    out[name] = len(d)
+h = load_histories("{repo}")
+pq.write_table(h.frame_table(), "frames.parquet")
+out["source"] = h.source
+out["info"] = h.info
+print(json.dumps(out))
+"""
+    got = _last_json(_ok(hub_client(olah, load)))
+    assert got["source"] == f"{repo}@{result['commit']}"
+    assert got["info"] == ds.info
+    frames = ds.frame_table()
+    assert got["default"] == frames.num_rows == ds.info["total_frames"]
+    assert pq.read_table(tmp_path / "frames.parquet").equals(frames)
+    # datasets' default config holds the same rows (its file order is its own: sort by index)
+    default = pq.read_table(tmp_path / "default.parquet").sort_by("index")
+    for col in ("index", "action", "next.reward", "history_index", "observation.state"):
+        assert default.column(col).to_pylist() == frames.column(col).to_pylist(), col
+    hist = pq.read_table(tmp_path / "histories.parquet").sort_by("history_index")
+    local = ds.histories.data.table.sort_by("history_index")
+    assert hist.column("returns").to_pylist() == local.column("returns").to_pylist()
+    assert got["episodes"] == ds.episodes.num_rows
+
+
+def test_re_push_mirrors_the_folder_and_moves_the_tag(
+    small_darkroom_batched, fake_hub, hub_client, tmp_path
+):
+    import shutil
+
+    repo = "lhf-test/darkroom-repush"
+    copy = tmp_path / "copy"
+    shutil.copytree(small_darkroom_batched.root, copy)
+    (copy / "meta" / "notes.txt").write_text("first version\n")
+    first = _last_json(_ok(hub_client(fake_hub.endpoint, PUSH, str(copy), repo)))
+    (copy / "meta" / "notes.txt").unlink()
+    second = _last_json(_ok(hub_client(fake_hub.endpoint, PUSH, str(copy), repo)))
+    assert second["deleted"] == 1 and first["commit"] != second["commit"]
+    git_repo = fake_hub.repo_path("datasets", *repo.split("/"))
+    assert "meta/notes.txt" not in _git(git_repo, "ls-files").splitlines()
+    assert _git(git_repo, "tag") == "v3.0"
+    assert _git(git_repo, "rev-parse", "v3.0^{commit}") == second["commit"]
+
+
+# ---------------------------------------------------------------------------- selection, checkpoint
+def test_selection_and_checkpoint_round_trip(
+    small_darkroom_batched, checkpoint, fake_hub, olah, hub_client, tmp_path
+):
+    from safetensors.numpy import load_file
+
+    ds_repo, sel_repo, model_repo = "lhf-test/small", "lhf-test/small-lhf-sel", "lhf-test/small-ad"
+    for path, repo in (
+        (small_darkroom_batched.root, ds_repo),
+        (checkpoint / "sel", sel_repo),
+        (checkpoint / "ad", model_repo),
+    ):
+        res = _last_json(_ok(hub_client(fake_hub.endpoint, PUSH, str(path), repo)))
+        assert res["repo_type"] == ("model" if repo == model_repo else "dataset")
+    model_git = fake_hub.repo_path("models", *model_repo.split("/"))
+    files = set(_git(model_git, "ls-files").splitlines())
+    assert {"config.json", "model.safetensors", "train_config.json", "README.md"} <= files
+    assert not any(f.startswith("checkpoint-") for f in files)  # optimizer states stay local
+    assert f'AutoModel.from_pretrained("{model_repo}")' in (model_git / "README.md").read_text()
+    sel_card = (fake_hub.repo_path("datasets", *sel_repo.split("/")) / "README.md").read_text()
+    assert _card_meta(sel_card)["configs"][0]["data_files"] == "selection.parquet"
+
+    load = f"""
+import json
+import lhf_hf.modeling
+from safetensors.torch import save_file
+from transformers import AutoModel
+from lhf_hf.filtering import load_selection
+m = AutoModel.from_pretrained("{model_repo}")
+save_file({{k: v.contiguous() for k, v in m.state_dict().items()}}, "reloaded.safetensors")
+sel = load_selection("{sel_repo}")
+print(json.dumps({{"counts": sel.counts(), "objective": m.config.objective}}))
+"""
+    got = _last_json(_ok(hub_client(olah, load)))
+    assert got["objective"] == "ad"
+    from lhf_hf.filtering import load_selection
+
+    local_counts = load_selection(checkpoint / "sel").counts()
+    assert {int(k): v for k, v in got["counts"].items()} == local_counts
+    before = load_file(checkpoint / "ad" / "model.safetensors")
+    after = load_file(tmp_path / "reloaded.safetensors")
+    assert before.keys() == after.keys()
+    for k in before:
+        assert (before[k] == after[k]).all(), k
+
+    # The CLI by repo id: filter, train (dataset + selection), evaluate, all through olah.
+    _ok(hub_client(olah, CLI, "filter", ds_repo, "--out", "sel2"))
+    assert pq.read_table(tmp_path / "sel2" / "scores.parquet").equals(
+        pq.read_table(checkpoint / "sel" / "scores.parquet")
+    )
+    _ok(
+        hub_client(
+            olah, CLI, "train", "--dataset", ds_repo, "--selection", sel_repo, "--objective", "ad",
+            "--preset", "tiny", "--max-steps", "2", "--batch-size", "4", "--out", "ad2",
+        )
+    )  # fmt: skip
+    prov = json.loads((tmp_path / "ad2" / "train_config.json").read_text())
+    assert prov["dataset"]["path"].startswith(f"{ds_repo}@")
+    assert prov["selection"]["path"].startswith(f"{sel_repo}@")
+    assert prov["dataset"]["fingerprint"] == small_darkroom_batched.fingerprint
+    _ok(
+        hub_client(
+            olah, CLI, "evaluate", "--model", model_repo, "--tasks", "3", "--episodes", "2",
+            "--out", "ev",
+        )
+    )  # fmt: skip
+    res = json.loads((tmp_path / "ev" / "eval_results.json").read_text())
+    assert res["model"]["path"].startswith(f"{model_repo}@")
+    assert len(res["returns"]) == 1 and len(res["returns"][0]) == 2
+
+
+def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_path):
+    repo = "lhf-test/trained-while-pushing"
+    _ok(
+        hub_client(
+            fake_hub.endpoint, CLI, "train", "--dataset", str(small_darkroom_batched.root),
+            "--objective", "dicp", "--preset", "tiny", "--max-steps", "4", "--save-steps", "2",
+            "--batch-size", "4", "--out", "run", "--push-to-hub", repo,
+        )
+    )  # fmt: skip
+    git_repo = fake_hub.repo_path("models", *repo.split("/"))
+    log = _git(git_repo, "log", "--format=%s").splitlines()
+    assert any(s.startswith("Training in progress, step 2") for s in log)  # Trainer, every save
+    assert log[0] == "lhf train: final model, step 4"
+    files = set(_git(git_repo, "ls-files").splitlines())
+    assert {"model.safetensors", "config.json", "train_config.json", "training_loss.png"} <= files
+    card = (git_repo / "README.md").read_text()
+    assert "lhf_hf" in _card_meta(card)["tags"]  # our card, not Trainer's generic one
+    assert f'AutoModel.from_pretrained("{repo}")' in card
+    pushed = (git_repo / "model.safetensors").read_bytes()
+    assert pushed == (tmp_path / "run" / "model.safetensors").read_bytes()
+
+
+# ---------------------------------------------------------------------------- bad input
+def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
+    ds = str(small_darkroom_batched.root)
+    _fails(
+        hub_client(fake_hub.endpoint, CLI, "push", ds, "--repo-id", "not a repo"), "invalid repo id"
+    )
+    (tmp_path / "empty").mkdir()
+    _fails(
+        hub_client(fake_hub.endpoint, CLI, "push", "empty", "--repo-id", "lhf-test/x"),
+        "is not an lhf artifact",
+    )
+    # No token: the server refuses, the push says where it failed and that nothing was committed.
+    _fails(
+        hub_client(
+            fake_hub.endpoint, CLI, "push", ds, "--repo-id", "lhf-test/no-token", token=None
+        ),
+        "failed at 'create the repo'",
+        "nothing was committed",
+    )
+    assert not fake_hub.repo_path("datasets", "lhf-test", "no-token").exists()
+    # The real Hub without a token: refused before any request (the guard would exit 97).
+    _fails(
+        hub_client(None, CLI, "push", ds, "--repo-id", "lhf-test/real", token=None),
+        "needs a write token",
+    )
+    # A commit the server rejects: an error, and the repo keeps its previous state (no tag).
+    fake_hub.fail_commits = 1
+    _fails(hub_client(fake_hub.endpoint, PUSH, ds, "lhf-test/rejected"), "nothing was committed")
+    git_repo = fake_hub.repo_path("datasets", "lhf-test", "rejected")
+    assert _git(git_repo, "rev-list", "--count", "main") == "1"  # the Hub's initial commit only
+    assert _git(git_repo, "tag") == ""
+
+
+def test_load_errors(fake_hub, olah, hub_client):
+    # A dataset repo that is not in our layout: a plain repo with a CSV.
+    plain = fake_hub.repo_path("datasets", "lhf-test", "plain-csv")
+    plain.mkdir(parents=True)
+    (plain / "data.csv").write_text("a,b\n1,2\n")
+    (plain / "README.md").write_text("# just a csv\n")
+    _git(plain, "init", "-q", "-b", "main")
+    _git(plain, "add", "-A")
+    _git(plain, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "csv")
+    _fails(
+        hub_client(olah, CLI, "filter", "lhf-test/plain-csv", "--out", "s"),
+        "lhf-test/plain-csv is not a learning-history dataset in the lhf layout",
+    )
+    _fails(
+        hub_client(olah, CLI, "filter", "lhf-test/does-not-exist", "--out", "s"),
+        "dataset repo lhf-test/does-not-exist",
+        "does not exist",
+    )
+    _fails(
+        hub_client(olah, CLI, "evaluate", "--model", "lhf-test/no-such-model", "--out", "e"),
+        "model repo lhf-test/no-such-model",
+    )
+    _fails(
+        hub_client(olah, CLI, "filter", "no/such/thing", "--out", "s"), "neither an existing path"
+    )
+
+
+def test_repo_ref_parsing():
+    from lhf_hf.hub import HubError, HubRef, parse_hub_ref, validate_repo_id
+
+    assert parse_hub_ref("org/name") == HubRef("org/name")
+    assert parse_hub_ref("org/name@v3.0") == HubRef("org/name", "v3.0")
+    assert parse_hub_ref("./org/name") is None
+    assert parse_hub_ref("/abs/path") is None
+    assert parse_hub_ref("a/b/c") is None
+    assert parse_hub_ref("name") is None
+    assert validate_repo_id("lhf/darkroom-v1.2") == "lhf/darkroom-v1.2"
+    for bad in ("lhf/a b", "lhf/x@main", "lhf//x", "lhf/--x"):
+        with pytest.raises(HubError, match="invalid repo id"):
+            validate_repo_id(bad)
+
+
+def test_upload_file_selection(tmp_path):
+    from lhf_hf.hub import upload_files
+
+    for rel in (
+        "config.json",
+        "model.safetensors",
+        "training_args.bin",
+        "checkpoint-500/optimizer.pt",
+        ".cache/x",
+        "meta/info.json",
+        "meta/info.json.tmp",
+        "_private",
+    ):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("x")
+    assert upload_files(tmp_path) == ["config.json", "meta/info.json", "model.safetensors"]
