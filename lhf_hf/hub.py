@@ -92,7 +92,10 @@ def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
             f"no {what} at {str(spec)!r}: neither an existing path nor a Hub repo id "
             "(ORG/NAME[@REVISION])"
         )
-    return download(ref, repo_type)
+    try:
+        return download(ref, repo_type)
+    except HubError as exc:
+        raise HubError(f"no {what} at {str(spec)!r} locally, and on the Hub: {exc}") from None
 
 
 def download(ref: HubRef, repo_type: str) -> Path:

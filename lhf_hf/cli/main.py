@@ -7,10 +7,10 @@ import sys
 
 from lhf_hf import __version__
 
-from . import collect, compare, derive, envs, evaluate, filter, push, train
+from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
-COMMANDS = [envs, collect, derive, filter, train, evaluate, compare, push]
+COMMANDS = [envs, collect, derive, filter, train, evaluate, compare, push, reproduce]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -88,15 +88,22 @@ def ppo_preset(env_id: str) -> PPOSettings:
 def parse_tasks(
     tasks: str | list[int] | tuple[int, ...], env_id: str, split_seed: int
 ) -> list[int]:
-    """``all`` | ``train`` | ``test`` | ``"0,3,7"`` | a list of ints -> sorted unique task indices."""
+    """``all`` | ``train`` | ``test`` | ``train:N`` / ``test:N`` (the first N of that split, for
+    reduced-scale runs) | ``"0,3,7"`` | a list of ints -> sorted unique task indices."""
     spec = get_spec(env_id)
     if isinstance(tasks, str):
         key = tasks.strip().lower()
         if key == "all":
             return list(range(spec.num_tasks))
-        if key in ("train", "test"):
+        part, _, count = key.partition(":")
+        if part in ("train", "test"):
             train, test = spec.split(split_seed)
-            return sorted(train if key == "train" else test)
+            chosen = sorted(train if part == "train" else test)
+            if not count:
+                return chosen
+            if not count.isdigit() or int(count) < 1:
+                raise ValueError(f"tasks {tasks!r}: N in '{part}:N' must be a positive integer")
+            return chosen[: int(count)]
         try:
             tasks = [int(t) for t in key.split(",") if t.strip()]
         except ValueError:

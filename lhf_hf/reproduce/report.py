@@ -1,0 +1,123 @@
+"""``report.md`` of a reproduction: our E beside the paper's, end-of-curve returns, curves, configs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .experiment import Experiment
+
+
+def verdict(e: float, e_std: float | None) -> str:
+    """Honest reading of one cell: an effect only counts when it exceeds its run-to-run spread."""
+    if not np.isfinite(e):
+        return "undefined (baseline return 0)"
+    if e_std is None:
+        return "helps (1 run, no error bar)" if e > 0 else "does not help (1 run, no error bar)"
+    if e - e_std > 0:
+        return "helps"
+    if e + e_std < 0:
+        return "hurts"
+    return "no clear effect (|E| within its std)"
+
+
+def _objective(backbone: str) -> str:
+    return backbone.split()[0].lower()
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None or not np.isfinite(x) else f"{100 * x:+.1f}"
+
+
+def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
+    objs = list(exp.objectives)
+    lines = [
+        f"# {exp.title}",
+        "",
+        f"`lhf reproduce {exp.name} --preset {exp.preset} --runs {exp.runs}`: "
+        f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
+        f"tasks per run). Paper: {exp.paper_table or '-'}.",
+        "",
+        f"**Budget** ({exp.preset}): {exp.budget or '-'}",
+        "",
+        "## Relative enhancement E (%) of LHF over each backbone",
+        "",
+        "E = (mean return over the whole test curve with LHF - without) / without, averaged over runs; "
+        "± is the std of the per-run E over paired runs (same seed and split). Paper values in "
+        "parentheses.",
+        "",
+        "| env | " + " | ".join(o.upper() for o in objs) + " |",
+        "|---|" + "---|" * len(objs),
+    ]
+    per_obj: dict[str, list[float]] = {o: [] for o in objs}
+    verdicts = []
+    for cell in cells:
+        rows = {_objective(r["backbone"]): r for r in cell["rows"]}
+        label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
+        entries = []
+        for o in objs:
+            r = rows.get(o)
+            paper = (exp.paper.get(cell["env_id"]) or {}).get(o)
+            paper_s = f" ({paper:+.1f})" if paper is not None else ""
+            if r is None:
+                entries.append("-" + paper_s)
+                continue
+            std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
+            entries.append(f"{_pct(r['E'])}{std}{paper_s}")
+            per_obj[o].append(r["E"])
+            verdicts.append((label, r["backbone"], r["E"], r["E_std"]))
+        lines.append(f"| {label} | " + " | ".join(entries) + " |")
+    avg = []
+    for o in objs:
+        paper = [(exp.paper.get(e) or {}).get(o) for e in exp.envs]
+        paper = [p for p in paper if p is not None]
+        paper_s = f" ({np.mean(paper):+.1f})" if paper and len(exp.envs) > 1 else ""
+        avg.append((_pct(float(np.mean(per_obj[o]))) if per_obj[o] else "-") + paper_s)
+    if len(cells) > 1:
+        lines.append("| average | " + " | ".join(avg) + " |")
+    lines += ["", "## Where LHF helps, and where it does not", ""]
+    for label, backbone, e, e_std in verdicts:
+        lines.append(f"- {label}, {backbone}: E {_pct(e)}% -> {verdict(e, e_std)}")
+    lines += [
+        "",
+        "## Absolute returns",
+        "",
+        "Mean over runs of the whole-curve mean and of the last 10% of the episodes (end of the curve).",
+        "",
+        "| env | backbone | baseline mean | LHF mean | baseline end | LHF end | runs |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for cell in cells:
+        label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
+        for r in cell["rows"]:
+            lines.append(
+                f"| {label} | {r['backbone']} | {r['baseline_mean']:.2f} ± {r['baseline_std']:.2f} | "
+                f"{r['lhf_mean']:.2f} ± {r['lhf_std']:.2f} | {r['baseline_final']:.2f} | "
+                f"{r['lhf_final']:.2f} | {r['runs_baseline']} |"
+            )
+    lines += ["", "## Learning curves on the unseen tasks", ""]
+    for cell in cells:
+        rel = Path(cell["env_id"]) / cell["arm"] / "compare.png"
+        if (out / rel).exists():
+            lines.append(f"![{cell['env_id']} {cell['arm']}]({rel.as_posix()})")
+            lines.append("")
+    cached = sum(1 for s in summary["stages"] if s["cached"])
+    ran = sum(s.get("wall_s", 0) for s in summary["stages"] if not s["cached"])
+    lines += [
+        "## Provenance",
+        "",
+        f"{len(summary['stages'])} stages ({cached} from cache), {ran:.0f} s of stage time in this call; "
+        f"created {summary['created']}. Versions: "
+        + ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
+        + ".",
+        "",
+        "Exact configuration (`results.json` also lists every stage folder):",
+        "",
+        "```yaml",
+        yaml.safe_dump(exp.to_dict(), sort_keys=False).rstrip(),
+        "```",
+        "",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,172 @@
+"""``reproduce(name, preset, runs, out, work)``: one paper experiment end to end.
+
+Per run r (seed r, train/test split r) and env: collect the train tasks' histories (optionally keep
+the first half of each), filter them with LHF (one selection per filter arm: the experiment's filter,
+or each value of its sweep), then per backbone train a baseline and an LHF model and evaluate both on
+the run's unseen tasks.  Then per env and arm: ``compare`` over the runs (E with its std over paired
+runs), and ``report.md`` beside the paper's numbers.  Every stage is cached by its config hash under
+``work`` (datasets and checkpoints: git-ignored); ``out`` gets only reports, JSON and PNGs.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from .experiment import Experiment, load_experiment
+from .stages import Stage, StageRunner
+
+
+def _arms(exp: Experiment) -> list[tuple[str, dict]]:
+    sweep = exp.filter.get("sweep")
+    base = {k: v for k, v in exp.filter.items() if k != "sweep"}
+    if not sweep:
+        return [("lhf", base)]
+    key, values = sweep["key"], sweep["values"]
+    return [(f"{key}={v}", {**base, key: v}) for v in values]
+
+
+def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
+    """Every stage of ``exp`` in run order (their folders under ``work``), and
+    ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``."""
+    from lhf_hf.collection import collect
+    from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
+    from lhf_hf.evaluation import evaluate
+    from lhf_hf.filtering.run import run_filter
+    from lhf_hf.histories.derive import derive_half
+    from lhf_hf.training import train
+    from lhf_hf.training.trainer import get_last_checkpoint
+
+    stages: list[Stage] = []
+    evals: dict[tuple[str, str, str], list[Stage]] = {}
+    collect_cfg = {k: v for k, v in exp.collect.items() if k != "half"}
+    train_cfg = dict(exp.train)
+    eval_cfg = {k: v for k, v in exp.evaluate.items() if k != "plan_dicp"}
+    for run in range(exp.runs):
+        for env in exp.envs:
+            tag = f"{env} run {run}"
+            c = {"env_id": env, "seed": run, "split_seed": run, **collect_cfg}
+
+            def do_collect(out: Path, c=c) -> None:
+                data = out / "data"
+                collect(CollectConfig(**c), data, resume=data.exists())
+
+            col = Stage(
+                "collect", f"{tag}: {c['histories']} histories x {c['steps']}", c, do_collect
+            )
+            stages.append(col)
+            data_stage = col
+            if exp.collect.get("half"):
+
+                def do_half(out: Path, src=col) -> None:
+                    derive_half(src.path(work) / "data", out / "data", overwrite=True)
+
+                data_stage = Stage("derive", f"{tag}: first half", {"src": col.hash}, do_half)
+                stages.append(data_stage)
+            arms = []
+            for arm, f in _arms(exp):
+                fc = {"src": data_stage.hash, **f, "seed": run}
+
+                def do_filter(out: Path, fc=fc, src=data_stage) -> None:
+                    cfg = FilterConfig(**{k: v for k, v in fc.items() if k != "src"})
+                    run_filter(src.path(work) / "data", out / "selection", cfg, overwrite=True)
+
+                sel = Stage("filter", f"{tag}: {arm}", fc, do_filter)
+                stages.append(sel)
+                arms.append((arm, sel))
+            for obj in exp.objectives:
+                for arm, sel in [("baseline", None), *arms]:
+                    tc = {"src": data_stage.hash, "objective": obj, "seed": run, **train_cfg}
+                    if sel is not None:
+                        tc["selection"] = sel.hash
+
+                    def do_train(out: Path, tc=tc, src=data_stage, sel=sel) -> None:
+                        model = out / "model"
+                        resume = model.is_dir() and get_last_checkpoint(str(model)) is not None
+                        fields = {k: v for k, v in tc.items() if k not in ("src", "selection")}
+                        train(
+                            TrainConfig(
+                                dataset=str(src.path(work) / "data"),
+                                selection=str(sel.path(work) / "selection") if sel else None,
+                                out=str(model),
+                                resume=resume,
+                                overwrite=not resume,
+                                **fields,
+                            )
+                        )
+
+                    tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train)
+                    plan = bool(obj == "dicp" and exp.evaluate.get("plan_dicp"))
+                    ec = {"model": tr.hash, "plan": plan, "seed": run, **eval_cfg}
+
+                    def do_eval(out: Path, ec=ec, tr=tr) -> None:
+                        fields = {k: v for k, v in ec.items() if k != "model"}
+                        model = str(tr.path(work) / "model")
+                        evaluate(EvalConfig(model=model, out=str(out / "eval"), **fields))
+
+                    ev = Stage("evaluate", f"{tag}: {obj.upper()} {arm}", ec, do_eval)
+                    stages += [tr, ev]
+                    evals.setdefault((env, arm, obj), []).append(ev)
+    return stages, evals
+
+
+def reproduce(
+    name: str,
+    preset: str = "quick",
+    runs: int | None = None,
+    out: str | Path | None = None,
+    work: str | Path = "runs/reproduce",
+    echo=print,
+) -> Path:
+    """Run experiment ``name`` at ``preset``; returns the path of ``report.md``."""
+    from lhf_hf.evaluation.compare import compare
+    from lhf_hf.histories.io import write_json_atomic, write_text_atomic
+    from lhf_hf.histories.writer import library_versions
+
+    from .report import render_report
+
+    exp = load_experiment(name, preset, runs)
+    out = Path(out or f"results/{exp.name}-{preset}")
+    work = Path(work)
+    stages, evals = plan_stages(exp, work)
+    echo(
+        f"[lhf reproduce] {exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
+        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
+        f"work folder {work}, report in {out}"
+    )
+    t0 = time.perf_counter()
+    runner = StageRunner(work, total=len(stages), echo=echo)
+    for stage in stages:
+        runner.run(stage)
+    cells = []
+    for env in exp.envs:
+        for arm, _ in _arms(exp):
+            base = [
+                str(s.path(work) / "eval")
+                for o in exp.objectives
+                for s in evals[(env, "baseline", o)]
+            ]
+            filt = [
+                str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, arm, o)]
+            ]
+            res = compare(base, filt, out=out / env / arm)
+            cells.append({"env_id": env, "arm": arm, **res})
+    wall = round(time.perf_counter() - t0, 1)
+    summary = {
+        "experiment": exp.to_dict(),
+        "cells": cells,
+        "stages": runner.log,
+        "wall_s": wall,
+        "versions": library_versions(["transformers", "accelerate"]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    write_json_atomic(summary, out / "results.json")
+    report = out / "report.md"
+    write_text_atomic(render_report(exp, cells, summary, out), report)
+    echo(f"[lhf reproduce] report: {report}  ({wall} s)")
+    return report
+
+
+def load_summary(out: str | Path) -> dict:
+    return json.loads((Path(out) / "results.json").read_text())

@@ -1,0 +1,72 @@
+"""Stages cached by their config's hash: a rerun skips what is done and resumes what is not.
+
+A stage's folder is ``WORK/<kind>/<hash12>`` where the hash covers the stage's own config AND the
+hashes of the stages it reads (its ``inputs``), so changing a collection setting re-runs everything
+downstream of it and nothing else.  ``stage.json`` is written last (atomically): its presence is
+the "done" mark.  A half-finished stage is resumed by the stage function itself (collection and
+training resume from their own markers/checkpoints).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+DONE_FILE = "stage.json"
+
+
+def config_hash(config: dict) -> str:
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
+
+
+@dataclass
+class Stage:
+    kind: str  # collect / derive / filter / train / evaluate
+    label: str  # human-readable, for the progress display
+    config: dict  # everything that determines the output, upstream hashes included
+    fn: Callable[[Path], None]  # writes the output into the folder it is given
+
+    @property
+    def hash(self) -> str:
+        return config_hash({"kind": self.kind, **self.config})
+
+    def path(self, work: Path) -> Path:
+        return Path(work) / self.kind / self.hash[:12]
+
+
+class StageRunner:
+    """Runs stages in order with a one-line-per-stage progress display."""
+
+    def __init__(self, work: str | Path, total: int | None = None, echo: Callable = print):
+        self.work = Path(work)
+        self.total = total
+        self.done = 0
+        self.echo = echo
+        self.log: list[dict] = []
+
+    def run(self, stage: Stage) -> Path:
+        from lhf_hf.histories.io import write_json_atomic
+
+        out = stage.path(self.work)
+        self.done += 1
+        head = f"[{self.done}/{self.total or '?'}] {stage.kind:<8} {stage.label}"
+        if (out / DONE_FILE).exists():
+            self.echo(f"{head}: cached ({out})")
+            self.log.append({"stage": stage.label, "path": str(out), "cached": True})
+            return out
+        self.echo(f"{head} ...")
+        t0 = time.perf_counter()
+        out.mkdir(parents=True, exist_ok=True)
+        stage.fn(out)
+        wall = round(time.perf_counter() - t0, 1)
+        write_json_atomic(
+            {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall},
+            out / DONE_FILE,
+        )
+        self.echo(f"{head}: done in {wall} s")
+        self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})
+        return out

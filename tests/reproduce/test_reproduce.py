@@ -1,0 +1,130 @@
+"""lhf reproduce: experiment specs, stage caching by config hash, seeds/splits per run, the report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from lhf_hf.reproduce import experiment_names, load_experiment, plan_stages, reproduce
+from lhf_hf.reproduce.report import verdict
+from lhf_hf.reproduce.reproduce import _arms
+
+TINY = {
+    "title": "tiny",
+    "paper_table": "a test",
+    "envs": ["darkroom"],
+    "objectives": ["ad"],
+    "paper": {"darkroom": {"ad": 25.1}},
+    "presets": {
+        "quick": {
+            "runs": 2,
+            "collect": {"tasks": "train:2", "histories": 4, "steps": 200},
+            "train": {"preset": "tiny", "max_steps": 4, "batch_size": 4, "save_steps": 4},
+            "evaluate": {"episodes": 2},
+        }
+    },
+}
+
+
+def _spec(tmp_path: Path, spec: dict, name: str = "tiny") -> str:
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return str(path)
+
+
+def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
+    names = experiment_names()
+    for required in ("darkroom-main", "darkroom-noisy", "darkroom-half", "darkroom-lightweight",
+                     "darkroom-lambda", "darkroom-softmax", "metaworld-ml1", "metaworld-sac"):  # fmt: skip
+        assert required in names
+    for name in names:
+        for preset in ("quick", "cpu", "paper"):
+            exp = load_experiment(name, preset)
+            stages, evals = plan_stages(exp, tmp_path)
+            # every (env, arm, backbone) cell has one evaluation per run
+            assert all(len(v) == exp.runs for v in evals.values())
+            assert len({s.hash for s in stages}) == len(stages)  # no two stages share a folder
+    main = load_experiment("darkroom-main", "paper")
+    assert main.paper["darkroom"] == {"ad": 25.1, "dicp": 15.2, "dpt": 3.5}
+    assert main.envs == ("darkroom", "darkroom-permuted", "darkroom-large", "dark-key-to-door")
+    assert load_experiment("darkroom-main", "quick").envs == ("darkroom",)
+    assert load_experiment("darkroom-main", "cpu", runs=5).runs == 5
+
+
+def test_spec_errors(tmp_path):
+    with pytest.raises(KeyError, match="unknown experiment 'nope'"):
+        load_experiment("nope")
+    with pytest.raises(ValueError, match="has no preset 'cpu'"):
+        load_experiment(_spec(tmp_path, TINY), "cpu")
+    with pytest.raises(ValueError, match="unknown keys"):
+        load_experiment(_spec(tmp_path, {**TINY, "colect": {}}, "typo"), "quick")
+    with pytest.raises(KeyError, match="unknown env"):
+        load_experiment(_spec(tmp_path, {**TINY, "envs": ["darkroom-xl"]}, "env"), "quick")
+    with pytest.raises(ValueError, match="objectives"):
+        load_experiment(_spec(tmp_path, {**TINY, "objectives": ["bc"]}, "obj"), "quick")
+
+
+def test_sweep_arms_and_verdicts():
+    exp = load_experiment("darkroom-lambda", "quick")
+    arms = _arms(exp)
+    assert [a for a, _ in arms] == ["lam=0", "lam=0.5", "lam=1", "lam=2", "lam=1000"]
+    assert [f["lam"] for _, f in arms] == [0, 0.5, 1, 2, 1000]
+    assert all(f["strategy"] == "linear" and "sweep" not in f for _, f in arms)
+    assert _arms(load_experiment("darkroom-main", "quick")) == [
+        ("lhf", {"strategy": "linear", "lam": 1.0, "alpha": 0.125})
+    ]
+    assert verdict(0.10, 0.05) == "helps"
+    assert verdict(-0.10, 0.05) == "hurts"
+    assert verdict(0.03, 0.05).startswith("no clear effect")
+    assert verdict(0.03, None).startswith("helps (1 run")
+    assert verdict(float("nan"), None).startswith("undefined")
+
+
+@pytest.mark.slow
+def test_reproduce_caches_stages_and_reports(tmp_path):
+    spec = _spec(tmp_path, TINY)
+    work, out = tmp_path / "work", tmp_path / "out"
+    lines: list[str] = []
+    report = reproduce(spec, "quick", out=out, work=work, echo=lines.append)
+    summary = json.loads((out / "results.json").read_text())
+    assert [s["cached"] for s in summary["stages"]] == [False] * 12  # 2 runs x 6 stages
+    # run r: seed r and split r (different unseen tasks per run)
+    evals = sorted(work.glob("evaluate/*/eval/eval_results.json"))
+    results = [json.loads(p.read_text()) for p in evals]
+    assert sorted(r["split_seed"] for r in results) == [0, 0, 1, 1]
+    assert sorted(r["config"]["seed"] for r in results) == [0, 0, 1, 1]
+    # E in the report = (LHF - baseline) / baseline of the whole-curve means, by hand
+    cell = summary["cells"][0]["rows"][0]
+    base = [r for r in results if r["model"]["selection"] is None]
+    lhf = [r for r in results if r["model"]["selection"] is not None]
+    mb = np.mean([np.mean(r["mean_curve"]) for r in base])
+    mf = np.mean([np.mean(r["mean_curve"]) for r in lhf])
+    if mb != 0:
+        assert cell["E"] == pytest.approx((mf - mb) / mb)
+    text = report.read_text()
+    assert "(+25.1)" in text  # the paper's value beside ours
+    assert (
+        "darkroom/lhf/compare.png" in text and (out / "darkroom" / "lhf" / "compare.png").exists()
+    )
+    assert "## Where LHF helps" in text and "Budget" in text
+    # A rerun is all cache hits and writes the same table.
+    lines.clear()
+    reproduce(spec, "quick", out=out, work=work, echo=lines.append)
+    again = json.loads((out / "results.json").read_text())
+    assert all(s["cached"] for s in again["stages"])
+    assert again["cells"][0]["rows"] == summary["cells"][0]["rows"]
+    assert sum("cached" in line for line in lines) == 12
+    # Changing the training budget re-runs training and evaluation only.
+    changed = json.loads(json.dumps(TINY))
+    changed["presets"]["quick"]["train"]["max_steps"] = 6
+    reproduce(_spec(tmp_path, changed), "quick", out=out, work=work, echo=lines.append)
+    third = json.loads((out / "results.json").read_text())
+    kind = {True: set(), False: set()}
+    for st in third["stages"]:
+        kind[st["cached"]].add(Path(st["path"]).parent.name)
+    assert kind == {True: {"collect", "filter"}, False: {"train", "evaluate"}}
+    assert sum(not st["cached"] for st in third["stages"]) == 8  # 2 runs x 2 models x (train, eval)
