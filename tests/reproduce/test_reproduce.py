@@ -128,3 +128,10 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
         kind[st["cached"]].add(Path(st["path"]).parent.name)
     assert kind == {True: {"collect", "filter"}, False: {"train", "evaluate"}}
     assert sum(not st["cached"] for st in third["stages"]) == 8  # 2 runs x 2 models x (train, eval)
+
+
+def test_cli_errors(capsys):
+    from lhf_hf.cli.main import main
+
+    assert main(["reproduce", "no-such-experiment"]) == 1
+    assert "unknown experiment 'no-such-experiment'" in capsys.readouterr().err
