@@ -135,3 +135,30 @@ def test_cli_errors(capsys):
 
     assert main(["reproduce", "no-such-experiment"]) == 1
     assert "unknown experiment 'no-such-experiment'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_half_histories_and_sweep_arms(tmp_path):
+    from lhf_hf.histories import load_histories
+
+    spec = json.loads(json.dumps(TINY))
+    spec["collect"] = {"half": True}
+    spec["filter"] = {"strategy": "linear", "sweep": {"key": "lam", "values": [0, 1000]}}
+    spec["presets"]["quick"]["runs"] = 1
+    work, out = tmp_path / "work", tmp_path / "out"
+    report = reproduce(
+        _spec(tmp_path, spec, "half"), "quick", out=out, work=work, echo=lambda s: None
+    )
+    summary = json.loads((out / "results.json").read_text())
+    kinds = [Path(s["path"]).parent.name for s in summary["stages"]]
+    assert kinds == ["collect", "derive", "filter", "filter"] + ["train", "evaluate"] * 3
+    full = load_histories(next(work.glob("collect/*")) / "data")
+    half = load_histories(next(work.glob("derive/*")) / "data")
+    assert half.info["total_frames"] * 2 == full.info["total_frames"]  # 200 -> 100 transitions
+    # both LHF arms were filtered from the half dataset, with their own lambda
+    for sel in work.glob("filter/*/selection/filter_config.json"):
+        meta = json.loads(sel.read_text())
+        assert meta["source"]["fingerprint"] == half.fingerprint
+    assert sorted(c["arm"] for c in summary["cells"]) == ["lam=0", "lam=1000"]
+    text = report.read_text()
+    assert "| darkroom (lam=0) |" in text and "| darkroom (lam=1000) |" in text
