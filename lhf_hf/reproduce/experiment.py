@@ -51,7 +51,10 @@ class Experiment:
     envs / objectives: the grid; every cell trains a baseline and an LHF model per run.
     runs: independent runs; run r uses seed r and train/test split r (paper: 3).
     collect / filter / train / evaluate: stage settings (CollectConfig, FilterConfig, TrainConfig,
-        EvalConfig fields; ``plan_dicp`` evaluates DICP with planning).
+        EvalConfig fields; ``plan_dicp``: true evaluates DICP with planning (the paper's
+        protocol), false without, "both" both ways from the same checkpoints, as two backbones
+        "DICP" and "DICP + plan": with a small training budget the learned dynamics can be too poor
+        to plan with, and the model-free row shows whether the policy itself learned).
     paper: the paper's E in percent, ``{env: {objective: value}}`` (None where it has none).
     budget: what the preset is, in words, against the paper's sizes (goes into the report).
     """
@@ -82,6 +85,16 @@ class Experiment:
             raise ValueError(f"{self.name}: objectives must be a non-empty subset of {OBJECTIVES}")
         if self.runs < 1:
             raise ValueError(f"{self.name}: runs must be >= 1, got {self.runs}")
+        if self.evaluate.get("plan_dicp", False) not in (True, False, "both"):
+            raise ValueError(
+                f"{self.name}: evaluate.plan_dicp must be true, false or 'both', "
+                f"got {self.evaluate['plan_dicp']!r}"
+            )
+
+    def dicp_plan_modes(self) -> tuple[bool, ...]:
+        """The ``plan`` values DICP models are evaluated with (one evaluation stage each)."""
+        mode = self.evaluate.get("plan_dicp", False)
+        return (False, True) if mode == "both" else (bool(mode),)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

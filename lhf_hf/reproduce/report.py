@@ -31,8 +31,17 @@ def _pct(x: float | None) -> str:
     return "-" if x is None or not np.isfinite(x) else f"{100 * x:+.1f}"
 
 
+def _columns(exp: Experiment) -> list[str]:
+    """The E table's backbone columns: one per objective, DICP once per planning mode."""
+    cols = []
+    for o in exp.objectives:
+        modes = exp.dicp_plan_modes() if o == "dicp" else (False,)
+        cols += [o.upper() + (" + plan" if plan else "") for plan in modes]
+    return cols
+
+
 def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
-    objs = list(exp.objectives)
+    cols = _columns(exp)
     lines = [
         f"# {exp.title}",
         "",
@@ -47,34 +56,42 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "E = (mean return over the whole test curve with LHF - without) / without, averaged over runs; "
         "± is the std of the per-run E over paired runs (same seed and split). Paper values in "
         "parentheses.",
-        "",
-        "| env | " + " | ".join(o.upper() for o in objs) + " |",
-        "|---|" + "---|" * len(objs),
     ]
-    per_obj: dict[str, list[float]] = {o: [] for o in objs}
+    if exp.evaluate.get("plan_dicp") == "both":
+        lines += [
+            "",
+            "DICP is evaluated from the same checkpoints without planning (`DICP`) and with the "
+            "paper's planning (`DICP + plan`); the paper's DICP values are with planning.",
+        ]
+    lines += [
+        "",
+        "| env | " + " | ".join(cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
+    per_col: dict[str, list[float]] = {c: [] for c in cols}
     verdicts = []
     for cell in cells:
-        rows = {_objective(r["backbone"]): r for r in cell["rows"]}
+        rows = {r["backbone"]: r for r in cell["rows"]}
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         entries = []
-        for o in objs:
-            r = rows.get(o)
-            paper = (exp.paper.get(cell["env_id"]) or {}).get(o)
+        for c in cols:
+            r = rows.get(c)
+            paper = (exp.paper.get(cell["env_id"]) or {}).get(_objective(c))
             paper_s = f" ({paper:+.1f})" if paper is not None else ""
             if r is None:
                 entries.append("-" + paper_s)
                 continue
             std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
             entries.append(f"{_pct(r['E'])}{std}{paper_s}")
-            per_obj[o].append(r["E"])
+            per_col[c].append(r["E"])
             verdicts.append((label, r["backbone"], r["E"], r["E_std"]))
         lines.append(f"| {label} | " + " | ".join(entries) + " |")
     avg = []
-    for o in objs:
-        paper = [(exp.paper.get(e) or {}).get(o) for e in exp.envs]
+    for c in cols:
+        paper = [(exp.paper.get(e) or {}).get(_objective(c)) for e in exp.envs]
         paper = [p for p in paper if p is not None]
         paper_s = f" ({np.mean(paper):+.1f})" if paper and len(exp.envs) > 1 else ""
-        avg.append((_pct(float(np.mean(per_obj[o]))) if per_obj[o] else "-") + paper_s)
+        avg.append((_pct(float(np.mean(per_col[c]))) if per_col[c] else "-") + paper_s)
     if len(cells) > 1:
         lines.append("| average | " + " | ".join(avg) + " |")
     lines += ["", "## Where LHF helps, and where it does not", ""]

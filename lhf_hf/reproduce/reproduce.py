@@ -97,17 +97,19 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                         )
 
                     tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train)
-                    plan = bool(obj == "dicp" and exp.evaluate.get("plan_dicp"))
-                    ec = {"model": tr.hash, "plan": plan, "seed": run, **eval_cfg}
+                    stages.append(tr)
+                    for plan in exp.dicp_plan_modes() if obj == "dicp" else (False,):
+                        ec = {"model": tr.hash, "plan": plan, "seed": run, **eval_cfg}
 
-                    def do_eval(out: Path, ec=ec, tr=tr) -> None:
-                        fields = {k: v for k, v in ec.items() if k != "model"}
-                        model = str(tr.path(work) / "model")
-                        evaluate(EvalConfig(model=model, out=str(out / "eval"), **fields))
+                        def do_eval(out: Path, ec=ec, tr=tr) -> None:
+                            fields = {k: v for k, v in ec.items() if k != "model"}
+                            model = str(tr.path(work) / "model")
+                            evaluate(EvalConfig(model=model, out=str(out / "eval"), **fields))
 
-                    ev = Stage("evaluate", f"{tag}: {obj.upper()} {arm}", ec, do_eval)
-                    stages += [tr, ev]
-                    evals.setdefault((env, arm, obj), []).append(ev)
+                        what = f"{obj.upper()}{' + plan' if plan else ''} {arm}"
+                        ev = Stage("evaluate", f"{tag}: {what}", ec, do_eval)
+                        stages.append(ev)
+                        evals.setdefault((env, arm, obj), []).append(ev)
     return stages, evals
 
 

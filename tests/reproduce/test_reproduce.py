@@ -45,8 +45,10 @@ def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
         for preset in ("quick", "cpu", "paper"):
             exp = load_experiment(name, preset)
             stages, evals = plan_stages(exp, tmp_path)
-            # every (env, arm, backbone) cell has one evaluation per run
-            assert all(len(v) == exp.runs for v in evals.values())
+            # every (env, arm, backbone) cell has one evaluation per run (DICP: per planning mode)
+            for (_, _, obj), v in evals.items():
+                modes = exp.dicp_plan_modes() if obj == "dicp" else (False,)
+                assert len(v) == exp.runs * len(modes)
             assert len({s.hash for s in stages}) == len(stages)  # no two stages share a folder
     main = load_experiment("darkroom-main", "paper")
     assert main.paper["darkroom"] == {"ad": 25.1, "dicp": 15.2, "dpt": 3.5}
@@ -66,6 +68,45 @@ def test_spec_errors(tmp_path):
         load_experiment(_spec(tmp_path, {**TINY, "envs": ["darkroom-xl"]}, "env"), "quick")
     with pytest.raises(ValueError, match="objectives"):
         load_experiment(_spec(tmp_path, {**TINY, "objectives": ["bc"]}, "obj"), "quick")
+    with pytest.raises(ValueError, match="plan_dicp must be true, false or 'both'"):
+        load_experiment(_spec(tmp_path, {**TINY, "evaluate": {"plan_dicp": "yes"}}, "pl"), "quick")
+
+
+def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path):
+    dicp = {**TINY, "objectives": ["ad", "dicp"], "paper": {"darkroom": {"ad": 25.1, "dicp": 15.2}}}
+    both = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": "both"}}, "b"))
+    plan = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": True}}, "p"))
+    assert both.dicp_plan_modes() == (False, True) and plan.dicp_plan_modes() == (True,)
+    stages_b, evals_b = plan_stages(both, tmp_path)
+    stages_p, evals_p = plan_stages(plan, tmp_path)
+    ev = evals_b[("darkroom", "baseline", "dicp")]  # 2 runs x 2 modes, run by run
+    assert [(s.config["seed"], s.config["plan"]) for s in ev] == [
+        (0, False), (0, True), (1, False), (1, True)
+    ]  # fmt: skip
+    assert ev[0].config["model"] == ev[1].config["model"]  # the same checkpoint
+    # the planned evaluations are the planning-only spec's stages: switching to "both" reuses them
+    assert [s.hash for s in ev if s.config["plan"]] == [
+        s.hash for s in evals_p[("darkroom", "baseline", "dicp")]
+    ]
+    assert len(stages_b) == len(stages_p) + 4  # + one model-free evaluation per DICP model
+    assert all(len(evals_b[("darkroom", a, "ad")]) == 2 for a in ("baseline", "lhf"))
+    # the report has one column per DICP mode, the paper's (planned) value beside both
+    from lhf_hf.reproduce.report import render_report
+
+    def row(backbone, e):
+        return {"backbone": backbone, "E": e, "E_std": 0.01, "baseline_mean": 5.0,
+                "baseline_std": 0.1, "lhf_mean": 5.0 * (1 + e), "lhf_std": 0.1,
+                "baseline_final": 6.0, "lhf_final": 7.0, "runs_baseline": 2, "runs_lhf": 2}  # fmt: skip
+
+    cells = [{"env_id": "darkroom", "arm": "lhf",
+              "rows": [row("AD", 0.2), row("DICP", 0.1), row("DICP + plan", -0.5)]}]  # fmt: skip
+    summary = {"stages": [], "created": "now", "versions": {}}
+    text = render_report(both, cells, summary, tmp_path)
+    assert "| env | AD | DICP | DICP + plan |" in text
+    assert "| darkroom | +20.0 ± 1.0 (+25.1) | +10.0 ± 1.0 (+15.2) | -50.0 ± 1.0 (+15.2) |" in text
+    assert "darkroom, DICP + plan: E -50.0% -> hurts" in text
+    assert "the paper's DICP values are with planning" in text
+    assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
 
 
 def test_sweep_arms_and_verdicts():
