@@ -3,10 +3,14 @@
     python benchmarks/bench_eval.py [--episodes 12] [--model CKPT_DIR] [--json OUT]
 
 Targets (issue "evaluation", DESIGN.md 9), darkroom, paper preset, the 8 test tasks of split 0:
-- rollout env-steps/s with the sliding-window cache vs recomputing the window every step: >= 10x;
+- rollout env-steps/s with the sliding-window KV cache vs the same function recomputed every step
+  (``--context recompute``: the receptive field, num_hidden_layers x (K - 1) + 1 tokens, with a
+  banded mask): >= 10x, identical actions;
 - a DICP planning step (beam search, 10 beams, horizon 8) vs a model-free step: <= 5x.
-Both modes consume the same random stream; the script reports whether they took identical actions
-and, with both contexts fed the same tokens, how far their policies are apart (total variation).
+Also timed: the reference code's protocol (``window``: the last K transitions re-encoded from scratch,
+a different function for deeper models).  All modes consume the same random stream; the script
+reports whether they took identical actions and, with the contexts fed the same tokens, how far their
+policies are apart (total variation).
 Without --model, randomly initialised paper-preset models are used (speed does not depend on the
 weights).
 """
@@ -36,7 +40,7 @@ def paper_model(objective: str, seed: int = 0) -> ICRLModel:
     return ICRLModel(cfg).eval()
 
 
-def run(model, episodes: int, use_cache: bool, plan: bool = False):
+def run(model, episodes: int, context: str, plan: bool = False):
     _, test = task_split(ENV, 0)
     return rollout(
         model,
@@ -44,17 +48,17 @@ def run(model, episodes: int, use_cache: bool, plan: bool = False):
         episodes,
         seed=1,
         plan=plan,
-        use_cache=use_cache,
+        context=context,
         progress=False,
         record_actions=True,
     )
 
 
 @torch.no_grad()
-def policy_distance(model, steps: int) -> dict:
-    """Feed identical random transition tokens to a cached and a recomputed context; TV distance."""
+def policy_distance(model, steps: int, other: str) -> dict:
+    """Feed identical random transition tokens to a cached and an ``other`` context; TV distance."""
     g = torch.Generator().manual_seed(0)
-    a, b = Context(model, True), Context(model, False)
+    a, b = Context(model, "cache"), Context(model, other)
     tv = []
     for _ in range(steps):
         e = torch.randn(8, 1, model.config.hidden_size, generator=g)
@@ -78,7 +82,10 @@ def main() -> None:
     p.add_argument("--json", default=None)
     p.add_argument("--env", default="darkroom", help="gridworld env id (all its test tasks)")
     p.add_argument("--skip-planning", action="store_true")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     args = p.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     global ENV
     ENV = args.env
     out = {
@@ -97,21 +104,21 @@ def main() -> None:
         args.skip_planning |= ad.config.objective != "dicp"
     else:
         ad, dicp = paper_model("ad"), paper_model("dicp")
-    # 1. cache vs recompute (AD tokens; one token per step)
-    cached, full = run(ad, args.episodes, True), run(ad, args.episodes, False)
+    # 1. cache vs recompute vs the window protocol (AD tokens; one token per step)
+    cached = run(ad, args.episodes, "cache")
     steps = cached.env_steps
-    out["cache"] = {
-        "env_steps_per_s_cache": steps / cached.wall_s,
-        "env_steps_per_s_recompute": steps / full.wall_s,
-        "speedup": full.wall_s / cached.wall_s,
-        "identical_actions": bool(np.array_equal(cached.actions, full.actions)),
-        "steps_until_first_difference": int(
-            np.argmax(np.any(cached.actions != full.actions, axis=0))
-            if not np.array_equal(cached.actions, full.actions)
-            else cached.actions.shape[1]
-        ),
-        **policy_distance(ad, 3 * ad.config.context_length),
-    }
+    out["cache"] = {"env_steps_per_s_cache": steps / cached.wall_s}
+    for other in ("recompute", "window"):
+        full = run(ad, args.episodes, other)
+        same = bool(np.array_equal(cached.actions, full.actions))
+        first_diff = np.argmax(np.any(cached.actions != full.actions, axis=0))
+        out["cache"][other] = {
+            "env_steps_per_s": steps / full.wall_s,
+            "cache_speedup": full.wall_s / cached.wall_s,
+            "identical_actions": same,
+            "steps_until_first_difference": int(cached.actions.shape[1] if same else first_diff),
+            **policy_distance(ad, 3 * ad.config.context_length, other),
+        }
     print(json.dumps(out["cache"], indent=1))
     if args.skip_planning:
         if args.json:
@@ -123,10 +130,10 @@ def main() -> None:
     K, H = dicp.config.context_length, get_spec(ENV).horizon
     warm = (K + H - 1) // H  # episodes until the context is full
     n = warm + 3
-    free = run(dicp, n, True)
+    free = run(dicp, n, "cache")
     t_free = free.wall_s
-    planned = run(dicp, n, True, plan=True)
-    base = run(dicp, warm, True)  # the shared part before planning starts
+    planned = run(dicp, n, "cache", plan=True)
+    base = run(dicp, warm, "cache")  # the shared part before planning starts
     per_free = (t_free - base.wall_s) / ((n - warm) * H)
     per_plan = (planned.wall_s - base.wall_s) / ((n - warm) * H)
     out["planning"] = {

@@ -21,7 +21,21 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--plan", action="store_true", help="DICP planning once the context is full")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-cache", action="store_true", help="recompute the window every step")
+    p.add_argument(
+        "--context",
+        choices=("cache", "recompute", "window"),
+        default="cache",
+        help="cache: sliding-window KV cache (default, fast); recompute: the same function "
+        "recomputed every step (the reference); window: the reference code's protocol, the last K "
+        "transitions re-encoded from scratch every step",
+    )
+    p.add_argument(
+        "--no-cache",
+        action="store_const",
+        const="recompute",
+        dest="context",
+        help="= --context recompute",
+    )
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
     return p
@@ -40,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         episodes=args.episodes,
         plan=args.plan,
         seed=args.seed,
-        use_cache=not args.no_cache,
+        context=args.context,
     )
     r = evaluate(cfg)
     print(

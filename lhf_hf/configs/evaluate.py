@@ -18,7 +18,10 @@ class EvalConfig:
     episodes: episodes per task (paper: 100), from an empty context.
     plan: DICP planning (beam search / greedy search) once the context is full.
     seed: seeds action sampling (and Meta-World resets).
-    use_cache: sliding-window KV cache (fast) or a full recompute of the window every step.
+    context: how the sliding context is kept (``lhf_hf.evaluation.context``): ``cache`` the
+        sliding-window KV cache (fast), ``recompute`` the same function recomputed over its receptive
+        field every step (the exactness and speed reference), ``window`` the reference code's
+        protocol (only the last K transitions re-encoded from scratch every step).
     """
 
     model: str
@@ -29,11 +32,15 @@ class EvalConfig:
     episodes: int = 100
     plan: bool = False
     seed: int = 0
-    use_cache: bool = True
+    context: str = "cache"
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
+        if self.context not in ("cache", "recompute", "window"):
+            raise ValueError(
+                f"EvalConfig.context must be 'cache', 'recompute' or 'window', got {self.context!r}"
+            )
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in ("test", "train"):

@@ -1,21 +1,30 @@
-"""The model's sliding context during a rollout: a KV cache, or a full recompute of the window.
+"""The model's sliding context during a rollout (DESIGN.md 7): sliding-window attention over the
+stream of tokens, kept as a KV cache or recomputed.
 
-``Context`` holds, for a batch of independent streams, the tokens the model currently sees (at most
-``config.max_tokens`` minus DICP's missing last query-action token) and returns the backbone's
-hidden states of newly appended tokens.
+Semantics.  A rollout is one stream of tokens (DICP: a query-action token ``Q`` after every
+transition token ``T`` but the last).  Every token attends to itself and the tokens just before it,
+``W`` tokens in all: ``W = K`` for AD/DPT and, for DICP, ``2K - 1`` for a ``T`` and ``2K`` for a ``Q``
+token (what the last ``T`` and ``Q`` tokens of a training window of ``K`` transitions see).  This is
+sliding-window attention in every layer (as in Mistral): a token's keys and values in layer l depend on
+its own window in layer l - 1 only, never on anything later, so
 
-- ``use_cache=True``: the Llama KV cache; tokens older than the window are dropped from the cache.
-  RoPE makes attention depend on relative positions only, so with explicit, ever-increasing
-  ``position_ids`` the kept keys need no recomputation.  The first layer is then exactly the
-  window's; deeper layers' cached keys were computed when their token was appended and so carry
-  information from up to ``num_hidden_layers`` windows back ("streaming" attention, as in
-  Transformer-XL).  Until the window first fills, and for one-layer models always, this equals the
-  recompute below (tested).
-- ``use_cache=False``: every call re-runs the backbone over the window's token embeddings from
-  scratch, exactly the training distribution (a window of K transitions); the reference code's
-  behaviour and the baseline of the cache benchmark.
+- ``mode="cache"`` (default, fast): the Llama KV cache.  Each token's keys and values are computed once,
+  when it is appended; tokens that no new token can see any more are evicted; when two tokens are
+  appended at once (DICP's ``Q, T``), a mask hides from the later one the oldest token only the earlier
+  one sees.  RoPE makes attention depend on relative positions only, so with absolute, ever-increasing
+  ``position_ids`` the kept keys never need recomputation.  This is *exactly* the semantics above.
+- ``mode="recompute"``: the same function without a cache, the reference of the cache's exactness and
+  of its speed: every call re-encodes the last ``R = num_hidden_layers * (W_max - 1) + n`` tokens from
+  their embeddings with a banded attention mask.  ``R`` is the receptive field: the newest tokens'
+  outputs depend on nothing older (each layer reaches ``W_max - 1`` tokens further back), so they are
+  exact although the oldest tokens of the recomputed span lack their own history.  Tested: identical
+  actions to ``cache`` for paper-size (4-layer) models, DICP included.
+- ``mode="window"``: the reference code's protocol, a different function for deeper models: every call
+  re-encodes only the last window (``K`` transitions) from scratch with causal attention, so the window's
+  oldest token sees nothing before it, as in a training window.  For one-layer models, and for any model
+  until the window first fills, it equals the other two (tested).
 
-``snapshot`` hands a planner the window's cache without letting it change the context.
+``snapshot`` hands a planner the context's cache without letting it change the context.
 """
 
 from __future__ import annotations
@@ -23,66 +32,149 @@ from __future__ import annotations
 import torch
 from transformers import DynamicCache
 
+MODES = ("cache", "recompute", "window")
+
+
+def band_mask(q_pos, q_win, k_pos, dtype=torch.float32) -> torch.Tensor:
+    """Additive attention bias (n, m): query i (stream position ``q_pos[i]``, window ``q_win[i]``) may
+    attend to key j iff ``q_pos[i] - q_win[i] < k_pos[j] <= q_pos[i]``.
+
+    A float bias, not a boolean mask: CPU SDPA converts a boolean mask on every layer."""
+    lo = (q_pos - q_win)[:, None]  # (n, 1)
+    ok = (k_pos[None, :] > lo) & (k_pos[None, :] <= q_pos[:, None])  # (n, m)
+    return torch.zeros(ok.shape, dtype=dtype).masked_fill_(~ok, float("-inf"))
+
 
 class Context:
-    def __init__(self, model, use_cache: bool = True, max_tokens: int | None = None):
+    """The tokens of a batch of independent streams and the backbone's hidden states of new ones.
+
+    max_tokens: ``W`` of a transition token (default: the model's window, see the module doc).
+    """
+
+    def __init__(self, model, mode: str = "cache", max_tokens: int | None = None):
+        if mode not in MODES:
+            raise ValueError(f"unknown context mode {mode!r}: one of {MODES}")
         self.model = model
-        self.use_cache = use_cache
+        self.mode = mode
+        c = model.config
+        self.dicp = c.objective == "dicp"
         # DICP: a window of K transitions ends with the transition token whose action is predicted,
         # so it holds 2K - 1 tokens before the query-action token of the new action is added.
-        c = model.config
         self.max_tokens = max_tokens or (
-            2 * c.context_length - 1 if c.objective == "dicp" else c.context_length
+            2 * c.context_length - 1 if self.dicp else c.context_length
         )
         self.cache: DynamicCache | None = None
-        self.embeds: torch.Tensor | None = None  # (B, L, D) recompute mode
-        self.pos = 0  # absolute position of the next token (cache mode)
-        self.length = 0  # tokens in the window
+        self.embeds: torch.Tensor | None = None  # (B, L, D) recompute / window modes
+        self.pos = 0  # stream position of the next token
+        self.start = 0  # stream position of the oldest kept token
+        self.windows = torch.zeros(0, dtype=torch.long)  # (L,) each kept token's W
+        self.length = 0  # tokens kept
+
+    def _windows(self, n: int, is_query) -> torch.Tensor:
+        q = torch.zeros(n, dtype=torch.bool) if is_query is None else torch.as_tensor(is_query)
+        return self.max_tokens + q.long()  # (n,) a query-action token sees one token more
 
     # ------------------------------------------------------------------ append
     @torch.no_grad()
-    def append(self, embeds: torch.Tensor) -> torch.Tensor:
-        """Add tokens (B, n, D); return their hidden states (B, n, D)."""
-        n = embeds.shape[1]
-        if self.use_cache:
-            pos = torch.arange(self.pos, self.pos + n, device=embeds.device).unsqueeze(0)  # (1, n)
-            pos = pos.expand(embeds.shape[0], n)
-            if self.cache is None:
-                self.cache = DynamicCache()
-            self._evict(self.max_tokens - n)  # room for the new tokens: they see a full window
-            hidden, self.cache = self.model.run_backbone(
-                embeds, past_key_values=self.cache, position_ids=pos, use_cache=True
-            )
-            self.pos += n
-            self.length += n
-            return hidden
-        self.embeds = embeds if self.embeds is None else torch.cat([self.embeds, embeds], dim=1)
-        self.embeds = self.embeds[:, -self.max_tokens :]  # (B, <=L, D)
-        self.length = self.embeds.shape[1]
-        L = self.length
-        pos = torch.arange(L, device=embeds.device).unsqueeze(0).expand(embeds.shape[0], L)
-        hidden, _ = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=False)
-        return hidden[:, -n:]
+    def append(self, embeds: torch.Tensor, is_query=None) -> torch.Tensor:
+        """Add tokens (B, n, D) (``is_query`` (n,) bool marks DICP query-action tokens); return their
+        hidden states (B, n, D)."""
+        B, n, _ = embeds.shape
+        win = self._windows(n, is_query)  # (n,)
+        new_pos = torch.arange(self.pos, self.pos + n)  # (n,)
+        if self.mode == "cache":
+            hidden = self._append_cached(embeds, new_pos, win)
+        elif self.mode == "recompute":
+            hidden = self._append_recompute(embeds, new_pos, win)
+        else:
+            hidden = self._append_window(embeds)
+        self.pos += n
+        return hidden
 
-    def _evict(self, keep: int) -> None:
-        drop = self.length - max(keep, 0)
+    def _append_cached(self, embeds, new_pos, win) -> torch.Tensor:
+        B, n, _ = embeds.shape
+        if self.cache is None:
+            self.cache = DynamicCache()
+        # keep the cached tokens that some new token still sees
+        self._evict(int((new_pos - win + 1).min()))
+        k_pos = torch.arange(self.start, self.pos + n)  # (C + n,)
+        mask = None  # one new token sees everything kept: plain causal attention is exact
+        if n > 1:  # a later new token may not see the oldest kept token(s)
+            mask = band_mask(new_pos, win, k_pos, embeds.dtype)[None, None].expand(B, 1, n, -1)
+        hidden, self.cache = self.model.run_backbone(
+            embeds,
+            past_key_values=self.cache,
+            position_ids=new_pos[None].expand(B, n),
+            use_cache=True,
+            attention_mask=mask,
+        )
+        self.length += n
+        return hidden
+
+    def _evict(self, first: int) -> None:
+        drop = first - self.start
         if drop > 0:
             for layer in self.cache.layers:
                 layer.keys = layer.keys[:, :, drop:]  # (B, H, L, Dh): the oldest tokens go
                 layer.values = layer.values[:, :, drop:]
+            self.start += drop
             self.length -= drop
+
+    def _receptive_field(self, n: int) -> int:
+        w_max = self.max_tokens + (1 if self.dicp else 0)
+        return self.model.config.num_hidden_layers * (w_max - 1) + n
+
+    def _append_recompute(self, embeds, new_pos, win) -> torch.Tensor:
+        B, n, _ = embeds.shape
+        self._keep(embeds, win, self._receptive_field(n))
+        k_pos = torch.arange(self.start, self.pos + n)  # (L,)
+        mask = band_mask(k_pos, self.windows, k_pos, embeds.dtype)  # (L, L)
+        L = len(k_pos)
+        hidden, _ = self.model.run_backbone(
+            self.embeds,
+            position_ids=k_pos[None].expand(B, L),
+            use_cache=False,
+            attention_mask=mask[None, None].expand(B, 1, L, L),
+        )
+        return hidden[:, -n:]
+
+    def _append_window(self, embeds) -> torch.Tensor:
+        B, n, _ = embeds.shape
+        self._keep(embeds, self._windows(n, None), self.max_tokens)
+        L = self.length
+        pos = torch.arange(L).unsqueeze(0).expand(B, L)
+        hidden, _ = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=False)
+        return hidden[:, -n:]
+
+    def _keep(self, embeds, win, keep: int) -> None:
+        """Append token embeddings (B, n, D) and keep the last ``keep``."""
+        full = embeds if self.embeds is None else torch.cat([self.embeds, embeds], dim=1)
+        windows = torch.cat([self.windows, win])
+        self.embeds, self.windows = full[:, -keep:], windows[-keep:]  # (B, <=keep, D), (<=keep,)
+        self.length = self.embeds.shape[1]
+        self.start = self.pos + len(win) - self.length
 
     # ------------------------------------------------------------------ planning
     @torch.no_grad()
     def snapshot(self) -> tuple[DynamicCache, int, int]:
-        """(cache of the current window, its length, the next token's position) for a planner.
+        """(cache of the kept tokens, its length, the next token's stream position) for a planner.
 
         The cache shares the context's tensors (appending to it creates new ones), so planning never
-        changes the context; in recompute mode the window is encoded once here."""
-        if self.use_cache:
+        changes the context; without a cache the kept tokens are encoded once here."""
+        if self.mode == "cache":
             data = [(layer.keys, layer.values) for layer in self.cache.layers]
             return DynamicCache(ddp_cache_data=data), self.length, self.pos
-        L = self.embeds.shape[1]
-        pos = torch.arange(L).unsqueeze(0).expand(self.embeds.shape[0], L)
+        B, L, _ = self.embeds.shape
+        if self.mode == "recompute":
+            k_pos = torch.arange(self.start, self.pos)  # (L,)
+            mask = band_mask(k_pos, self.windows, k_pos, self.embeds.dtype)
+            _, cache = self.model.run_backbone(
+                self.embeds,
+                position_ids=k_pos[None].expand(B, L),
+                use_cache=True,
+                attention_mask=mask[None, None].expand(B, 1, L, L),
+            )
+            return cache, L, self.pos
+        pos = torch.arange(L).unsqueeze(0).expand(B, L)
         _, cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
         return cache, L, L

@@ -99,7 +99,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
         cfg.episodes,
         seed=cfg.seed,
         plan=cfg.plan,
-        use_cache=cfg.use_cache,
+        context=cfg.context,
         progress=progress,
     )
     out = Path(cfg.out)

@@ -56,7 +56,7 @@ def rollout(
     episodes: int,
     seed: int = 0,
     plan: bool = False,
-    use_cache: bool = True,
+    context: str = "cache",
     progress: bool = True,
     record_actions: bool = False,
 ) -> RolloutResult:
@@ -70,7 +70,7 @@ def rollout(
         )
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    ctx = Context(model, use_cache=use_cache)
+    ctx = Context(model, mode=context)
     H = tasks.horizon
     returns, success, taken = [], [], []
     prev = None  # (state, action, reward, done) of the last step, numpy
@@ -108,10 +108,12 @@ def rollout(
                 prev_dones=_tensor(p_done)[:, None],
                 has_prev=has_prev,
             )  # (B, 1, D)
+            is_query = None
             if dicp and prev is not None:  # the query-action token of the step just taken
                 q = model.embed_query_actions(_tensor(p_state)[:, None], _tensor(p_action)[:, None])
                 tok = torch.cat([q, tok], dim=1)  # (B, 2, D)
-            hidden = ctx.append(tok)[:, -1:]  # (B, 1, D)
+                is_query = [True, False]
+            hidden = ctx.append(tok, is_query)[:, -1:]  # (B, 1, D)
             dist = model.action_distribution(hidden)
             full = steps + 1 >= c.context_length  # the context holds K transitions
             if plan and full and c.discrete_actions:

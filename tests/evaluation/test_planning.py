@@ -87,7 +87,7 @@ def goal_reward(s, a):
 
 
 def plan(model, start: int, horizon: int, beams: int = 10) -> int:
-    ctx = Context(model, use_cache=True, max_tokens=8)
+    ctx = Context(model, mode="cache", max_tokens=8)
     states = torch.tensor([[start]])
     ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
     logits = model.policy_logits[None]
@@ -115,7 +115,7 @@ def test_beam_search_breaks_ties_by_the_policy_order():
 
 def test_beam_search_batches_independent_streams():
     model = ChainModel(goal_reward)
-    ctx = Context(model, use_cache=True, max_tokens=8)
+    ctx = Context(model, mode="cache", max_tokens=8)
     states = torch.tensor([[5], [7], [9]])
     ctx.append(model.embed_transitions(states[:, None], None, None, None, None, None))
     logits = model.policy_logits.expand(3, 3)
@@ -154,7 +154,7 @@ class BanditModel:
 
 def test_greedy_search_picks_the_candidate_with_the_highest_predicted_reward():
     model = BanditModel()
-    ctx = Context(model, use_cache=True, max_tokens=4)
+    ctx = Context(model, mode="cache", max_tokens=4)
     ctx.append(torch.zeros(2, 1, 2))
     mean = torch.tensor([[0.0, 0.0], [0.3, 0.3]])
     log_std = torch.zeros(2, 2)
@@ -167,15 +167,21 @@ def test_greedy_search_picks_the_candidate_with_the_highest_predicted_reward():
 
 # ---------------------------------------------------------------------------- a real model
 @torch.no_grad()
-def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens):
+def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens, encode=None):
     """Reference: every candidate re-runs the backbone over its own linear token sequence (the
-    context window + its path, cut to the training window), as the reference code does per beam."""
+    context window + its path, cut to the training window, as the reference code does per beam; or
+    ``encode(tokens, last_is_query)``)."""
     A = logits.shape[-1]
 
     def last_hidden(tokens, window_len):
         seq = torch.cat(tokens, dim=1)[:, -window_len:]  # (1, L, D)
         pos = torch.arange(seq.shape[1])[None]
         return model.run_backbone(seq, position_ids=pos, use_cache=False)[0][:, -1:]
+
+    if encode is None:
+
+        def encode(tokens, query):
+            return last_hidden(tokens, max_tokens + int(query))
 
     beams_ = [dict(path=[], state=state, score=0.0, first=None, policy=logits)]
     for depth in range(horizon):
@@ -184,7 +190,7 @@ def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens):
             rank = torch.argsort(torch.argsort(-beam["policy"], stable=True))
             for a in range(A):
                 q = model.embed_query_actions(beam["state"][None, None], torch.tensor([[a]]))
-                h = last_hidden([window, *beam["path"], q], max_tokens + 1)
+                h = encode([window, *beam["path"], q], True)
                 dyn = model.dynamics(h)
                 r = float(dyn["reward_pred"][0, 0])
                 nxt = model.predicted_next_states(dyn)[0, 0]
@@ -216,9 +222,9 @@ def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens):
                 has_prev=torch.tensor([[True]]),
             )
             path = [*c["beam"]["path"], c["q"], t]
-            policy = model.action_distribution(last_hidden([window, *path], max_tokens))[
-                "action_logits"
-            ][0, 0]
+            policy = model.action_distribution(encode([window, *path], False))["action_logits"][
+                0, 0
+            ]
             beams_.append(
                 dict(path=path, state=c["nxt"], score=c["score"], first=c["first"], policy=policy)
             )
@@ -255,7 +261,7 @@ def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps)
     grow); two layers while the window is not yet full (keys of deeper layers are not recomputed)."""
     model = _dicp_model(layers, context)
     g = torch.Generator().manual_seed(0)
-    ctx = Context(model, use_cache=False)
+    ctx = Context(model, mode="window")
     for _ in range(steps):  # a context of random tokens (2 per transition for DICP)
         ctx.append(torch.randn(1, 2, model.config.hidden_size, generator=g))
     state = torch.tensor([[4, 4]])
@@ -272,3 +278,46 @@ def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps)
             float(got_score[0]),
             want_score,
         )
+
+
+def test_tree_beam_search_on_the_cache_is_exact_at_depth():
+    """The rollout's default: the KV cache after many evictions, three layers.  Every candidate's
+    reward and the policy at every imagined state must equal one forward over the whole stream (the
+    context's tokens and the candidate's path) with the sliding-window band, the context's
+    definition (``lhf_hf.evaluation.context``): identical choice and score."""
+    from lhf_hf.evaluation.context import band_mask
+
+    model = _dicp_model(3, 4)
+    D = model.config.hidden_size
+    g = torch.Generator().manual_seed(2)
+    ctx = Context(model, mode="cache")
+    W = ctx.max_tokens
+    first = torch.randn(1, 1, D, generator=g)
+    ctx.append(first)
+    stream, wins = [first], [W]
+    for _ in range(12):  # Q, T per step as in a rollout: the window of 4 transitions slides
+        tok = torch.randn(1, 2, D, generator=g)
+        ctx.append(tok, [True, False])
+        stream.append(tok)
+        wins += [W + 1, W]
+    seq = torch.cat(stream, dim=1)  # (1, 25, D)
+
+    def encode(tokens, query):
+        path = len(tokens) - 1  # imagined tokens: Q, T, Q, T, ...
+        full = torch.cat(tokens, dim=1)  # (1, N, D)
+        w = torch.tensor(wins + [W + 1 if i % 2 == 0 else W for i in range(path)])
+        pos = torch.arange(full.shape[1])
+        bias = band_mask(pos, w, pos)[None, None]
+        return model.run_backbone(
+            full, position_ids=pos[None], use_cache=False, attention_mask=bias
+        )[0][:, -1:]
+
+    state = torch.tensor([[4, 4]])
+    logits = torch.randn(1, 5, generator=g)
+    for horizon, beams in [(1, 10), (3, 10), (4, 2)]:
+        want_a, want_score = naive_beam_search(
+            model, seq, state[0], logits[0], horizon, beams, W, encode=encode
+        )
+        got_a, got_score = beam_search(model, ctx, state, logits, horizon, beams)
+        assert int(got_a[0]) == want_a, (horizon, beams)
+        assert abs(float(got_score[0]) - want_score) < 1e-4, (horizon, beams)

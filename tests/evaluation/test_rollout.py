@@ -29,7 +29,7 @@ def darkroom_model(objective="ad", layers=1, context=10, seed=0):
     return ICRLModel(cfg).eval()
 
 
-def actions(model, episodes, use_cache, plan=False, seed=3):
+def actions(model, episodes, context, plan=False, seed=3):
     _, test = task_split("darkroom", 0)
     r = rollout(
         model,
@@ -37,7 +37,7 @@ def actions(model, episodes, use_cache, plan=False, seed=3):
         episodes,
         seed=seed,
         plan=plan,
-        use_cache=use_cache,
+        context=context,
         progress=False,
         record_actions=True,
     )
@@ -45,34 +45,44 @@ def actions(model, episodes, use_cache, plan=False, seed=3):
 
 
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
-def test_cache_and_recompute_take_identical_actions_one_layer(objective):
-    """One layer: the sliding KV cache is exactly the window recompute, evictions included."""
-    model = darkroom_model(objective, layers=1, context=10)
-    a, b = actions(model, 4, True), actions(model, 4, False)  # 80 steps, context 10: 70 evictions
+def test_cache_and_recompute_take_identical_actions_paper_depth(objective):
+    """Four layers (the paper's depth), 100 steps through a window of 10 transitions: the sliding KV
+    cache and the recompute over the receptive field are the same function (identical actions and
+    returns with the same random stream), evictions and DICP's two tokens per step included."""
+    model = darkroom_model(objective, layers=4, context=10)
+    a, b = actions(model, 5, "cache"), actions(model, 5, "recompute")
     np.testing.assert_array_equal(a.actions, b.actions)
     np.testing.assert_array_equal(a.returns, b.returns)
 
 
-def test_cache_equals_recompute_until_the_window_fills_deeper_models():
-    model = darkroom_model("ad", layers=3, context=30)
-    a, b = actions(model, 2, True), actions(model, 2, False)
+@pytest.mark.parametrize("objective", ["ad", "dicp"])
+def test_window_protocol_equals_the_cache_for_one_layer_and_until_the_window_fills(objective):
+    one = darkroom_model(objective, layers=1, context=10)
+    np.testing.assert_array_equal(
+        actions(one, 4, "cache").actions, actions(one, 4, "window").actions
+    )
+    deep = darkroom_model(objective, layers=3, context=30)
+    a, b = actions(deep, 2, "cache"), actions(deep, 2, "window")
     np.testing.assert_array_equal(a.actions[:, :30], b.actions[:, :30])
 
 
 def test_planning_starts_once_the_context_is_full():
     model = darkroom_model("dicp", layers=1, context=10)
-    r = actions(model, 2, True, plan=True)
+    r = actions(model, 2, "cache", plan=True)
     assert r.planned_steps == 40 - 9  # steps 10..40 (the context holds 10 transitions from step 10)
-    r2 = actions(model, 2, False, plan=True)
-    np.testing.assert_array_equal(r.actions, r2.actions)  # planning in both context modes agrees
+    for mode in ("recompute", "window"):  # planning in every context mode agrees (one layer)
+        np.testing.assert_array_equal(r.actions, actions(model, 2, mode, plan=True).actions)
+    deep = darkroom_model("dicp", layers=3, context=6)
+    a, b = actions(deep, 2, "cache", plan=True), actions(deep, 2, "recompute", plan=True)
+    np.testing.assert_array_equal(a.actions, b.actions)  # exact at depth: the same function
 
 
 def test_same_seed_same_rollout_other_seed_differs():
     model = darkroom_model("ad")
     a, b, c = (
-        actions(model, 2, True, seed=1),
-        actions(model, 2, True, seed=1),
-        actions(model, 2, True, seed=2),
+        actions(model, 2, "cache", seed=1),
+        actions(model, 2, "cache", seed=1),
+        actions(model, 2, "cache", seed=2),
     )
     np.testing.assert_array_equal(a.actions, b.actions)
     assert not np.array_equal(a.actions, c.actions)
@@ -138,6 +148,8 @@ def test_evaluate_errors(tmp_path):
         evaluate(EvalConfig(model=str(tmp_path / "none"), out=str(tmp_path / "e")))
     with pytest.raises(ValueError, match="episodes"):
         EvalConfig(model="m", out="o", episodes=0)
+    with pytest.raises(ValueError, match="context must be 'cache', 'recompute' or 'window'"):
+        EvalConfig(model="m", out="o", context="fast")
 
 
 def fake_eval(path, objective, curve, env="darkroom", plan=False):
@@ -205,6 +217,17 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
         == 1
     )
     assert "dynamics heads" in capsys.readouterr().err
+    # --context / --no-cache reach the rollout and the results (same function: same returns)
+    for flags, mode in [(["--no-cache"], "recompute"), (["--context", "window"], "window")]:
+        out = tmp_path / f"e-{mode}"
+        args = ["evaluate", "--model", str(tmp_path / "m"), "--episodes", "2", "--out", str(out)]
+        assert main(args + flags) == 0
+        saved = json.loads((out / "eval_results.json").read_text())
+        assert saved["config"]["context"] == mode
+    base = json.loads((tmp_path / "e" / "eval_results.json").read_text())
+    assert base["config"]["context"] == "cache"
+    again = json.loads((tmp_path / "e-recompute" / "eval_results.json").read_text())
+    assert again["returns"] == base["returns"]
 
 
 @pytest.mark.metaworld

@@ -1,0 +1,69 @@
+"""The sliding context against its definition: sliding-window attention over the whole stream."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lhf_hf.evaluation.context import Context, band_mask
+from lhf_hf.modeling import ICRLModel, icrl_config
+
+
+def _model(objective: str, layers: int, context: int) -> ICRLModel:
+    cfg = icrl_config(
+        "tiny", objective=objective, context_length=context, state_bins=9, num_hidden_layers=layers
+    )
+    torch.manual_seed(0)
+    return ICRLModel(cfg).eval()
+
+
+def test_band_mask_by_hand():
+    # queries at stream positions 3 (window 2) and 4 (window 3) over keys 1..4
+    m = band_mask(torch.tensor([3, 4]), torch.tensor([2, 3]), torch.tensor([1, 2, 3, 4]))
+    want = torch.tensor([[False, True, True, False], [False, True, True, True]])
+    assert torch.equal(m == 0, want) and torch.all(m[~want] == float("-inf"))
+
+
+@torch.no_grad()
+@pytest.mark.parametrize("objective", ["ad", "dicp"])
+def test_cache_and_recompute_equal_a_full_stream_banded_forward(objective):
+    """Definition: every token attends to the W tokens ending at itself (W = K, DICP: 2K - 1 for a
+    transition token, 2K for a query-action token).  One forward over the whole stream with that
+    band is the reference; the KV cache (evictions, DICP's two tokens per step) and the recompute
+    over the receptive field must give the same hidden states for every new token, 4 layers deep."""
+    K, layers = 5, 4
+    model = _model(objective, layers, K)
+    D = model.config.hidden_size
+    g = torch.Generator().manual_seed(0)
+    cache, recompute, window = (Context(model, mode=m) for m in ("cache", "recompute", "window"))
+    W = cache.max_tokens
+    assert W == (2 * K - 1 if objective == "dicp" else K)
+    stream, wins = [], []
+    for step in range(6 * K):  # many evictions
+        is_q = [True, False] if objective == "dicp" and step else [False]
+        tok = torch.randn(2, len(is_q), D, generator=g)  # (B, n, D)
+        got = cache.append(tok, is_q)
+        got_r = recompute.append(tok, is_q)
+        got_w = window.append(tok, is_q)
+        stream.append(tok)
+        wins += [W + int(q) for q in is_q]
+        seq = torch.cat(stream, dim=1)  # (B, N, D)
+        N = seq.shape[1]
+        pos = torch.arange(N)
+        mask = band_mask(pos, torch.tensor(wins), pos)[None, None].expand(2, 1, N, N)
+        want, _ = model.run_backbone(
+            seq, position_ids=pos[None].expand(2, N), use_cache=False, attention_mask=mask
+        )
+        want = want[:, -len(is_q) :]
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(got_r, want, atol=1e-5, rtol=1e-5)
+        if N <= W:  # before the window first fills, the reference protocol is the same function
+            torch.testing.assert_close(got_w[:, -1], want[:, -1], atol=1e-5, rtol=1e-5)
+    # the cache keeps what the next tokens can see; the recompute keeps the receptive field
+    w_max, n = (W + 1, 2) if objective == "dicp" else (W, 1)
+    assert cache.length <= W + 2 and recompute.length == layers * (w_max - 1) + n
+
+
+def test_unknown_mode():
+    with pytest.raises(ValueError, match="unknown context mode 'fast'"):
+        Context(_model("ad", 1, 4), mode="fast")
