@@ -32,7 +32,10 @@ from __future__ import annotations
 import torch
 from transformers import DynamicCache
 
+from .decode import LeanLlama, supported
+
 MODES = ("cache", "recompute", "window")
+ENGINES = ("auto", "lean", "hf")  # auto: lean where supported (cache mode), else HF's forward
 
 
 def band_mask(q_pos, q_win, k_pos, dtype=torch.float32) -> torch.Tensor:
@@ -51,11 +54,22 @@ class Context:
     max_tokens: ``W`` of a transition token (default: the model's window, see the module doc).
     """
 
-    def __init__(self, model, mode: str = "cache", max_tokens: int | None = None):
+    def __init__(
+        self, model, mode: str = "cache", max_tokens: int | None = None, engine: str = "auto"
+    ):
         if mode not in MODES:
             raise ValueError(f"unknown context mode {mode!r}: one of {MODES}")
+        if engine not in ENGINES:
+            raise ValueError(f"unknown context engine {engine!r}: one of {ENGINES}")
         self.model = model
         self.mode = mode
+        # the cached step's forward: the lean exact decoder (``decode.py``) when the model allows it
+        why_not = supported(model)
+        if engine == "lean" and why_not is not None:
+            raise ValueError(f"engine='lean' cannot run this model: {why_not}")
+        use_lean = mode == "cache" and engine != "hf" and why_not is None
+        self.engine = "lean" if use_lean else "hf"
+        self.lean = LeanLlama(model) if use_lean else None
         c = model.config
         self.dicp = c.objective == "dicp"
         # DICP: a window of K transitions ends with the transition token whose action is predicted,
@@ -63,7 +77,7 @@ class Context:
         self.max_tokens = max_tokens or (
             2 * c.context_length - 1 if self.dicp else c.context_length
         )
-        self.cache: DynamicCache | None = None
+        self.cache: DynamicCache | list | None = None  # list of WindowKV with the lean engine
         self.embeds: torch.Tensor | None = None  # (B, L, D) recompute / window modes
         self.pos = 0  # stream position of the next token
         self.start = 0  # stream position of the oldest kept token
@@ -93,7 +107,7 @@ class Context:
 
     def _append_cached(self, embeds, new_pos, win) -> torch.Tensor:
         B, n, _ = embeds.shape
-        if self.cache is None:
+        if self.cache is None and self.lean is None:
             self.cache = DynamicCache()
         # keep the cached tokens that some new token still sees
         self._evict(int((new_pos - win + 1).min()))
@@ -101,6 +115,10 @@ class Context:
         mask = None  # one new token sees everything kept: plain causal attention is exact
         if n > 1:  # a later new token may not see the oldest kept token(s)
             mask = band_mask(new_pos, win, k_pos, embeds.dtype)[None, None].expand(B, 1, n, -1)
+        if self.lean is not None:  # self.cache: one WindowKV per layer
+            hidden, self.cache = self.lean(embeds, new_pos[None].expand(B, n), self.cache, mask)
+            self.length += n
+            return hidden
         hidden, self.cache = self.model.run_backbone(
             embeds,
             past_key_values=self.cache,
@@ -113,10 +131,14 @@ class Context:
 
     def _evict(self, first: int) -> None:
         drop = first - self.start
-        if drop > 0:
-            for layer in self.cache.layers:
-                layer.keys = layer.keys[:, :, drop:]  # (B, H, L, Dh): the oldest tokens go
-                layer.values = layer.values[:, :, drop:]
+        if drop > 0 and self.cache is not None:
+            if self.lean is not None:
+                for kv in self.cache:
+                    kv.evict(drop)
+            else:
+                for layer in self.cache.layers:
+                    layer.keys = layer.keys[:, :, drop:]  # (B, H, L, Dh): the oldest tokens go
+                    layer.values = layer.values[:, :, drop:]
             self.start += drop
             self.length -= drop
 
@@ -162,7 +184,8 @@ class Context:
         The cache shares the context's tensors (appending to it creates new ones), so planning never
         changes the context; without a cache the kept tokens are encoded once here."""
         if self.mode == "cache":
-            data = [(layer.keys, layer.values) for layer in self.cache.layers]
+            layers = self.cache if self.lean is not None else self.cache.layers
+            data = [(layer.keys, layer.values) for layer in layers]
             return DynamicCache(ddp_cache_data=data), self.length, self.pos
         B, L, _ = self.embeds.shape
         if self.mode == "recompute":

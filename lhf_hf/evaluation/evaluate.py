@@ -124,6 +124,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
         "env_steps": res.env_steps,
         "env_steps_per_s": round(res.env_steps / res.wall_s, 1),
         "planned_steps": res.planned_steps,
+        "engine": res.engine,
         "versions": library_versions(["transformers"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

@@ -30,6 +30,7 @@ class RolloutResult:
     wall_s: float
     env_steps: int
     planned_steps: int
+    engine: str = "hf"  # the cached step's forward: "lean" (decode.py) or "hf" (LlamaModel.forward)
 
 
 def _tensor(x, dtype=None) -> torch.Tensor:
@@ -59,8 +60,12 @@ def rollout(
     context: str = "cache",
     progress: bool = True,
     record_actions: bool = False,
+    engine: str = "auto",
 ) -> RolloutResult:
-    """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context."""
+    """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
+
+    ``context``: how the sliding context is computed (``Context`` modes); ``engine``: the cached
+    step's forward, ``auto`` (the lean exact decoder where the model allows it), ``lean`` or ``hf``."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -70,7 +75,7 @@ def rollout(
         )
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    ctx = Context(model, mode=context)
+    ctx = Context(model, mode=context, engine=engine)
     H = tasks.horizon
     returns, success, taken = [], [], []
     prev = None  # (state, action, reward, done) of the last step, numpy
@@ -161,4 +166,5 @@ def rollout(
         wall_s=time.perf_counter() - t0,
         env_steps=steps * len(state),
         planned_steps=planned,
+        engine=ctx.engine,
     )

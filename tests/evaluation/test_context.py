@@ -25,8 +25,9 @@ def test_band_mask_by_hand():
 
 
 @torch.no_grad()
+@pytest.mark.parametrize("engine", ["lean", "hf"])
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
-def test_cache_and_recompute_equal_a_full_stream_banded_forward(objective):
+def test_cache_and_recompute_equal_a_full_stream_banded_forward(objective, engine):
     """Definition: every token attends to the W tokens ending at itself (W = K, DICP: 2K - 1 for a
     transition token, 2K for a query-action token).  One forward over the whole stream with that
     band is the reference; the KV cache (evictions, DICP's two tokens per step) and the recompute
@@ -35,7 +36,9 @@ def test_cache_and_recompute_equal_a_full_stream_banded_forward(objective):
     model = _model(objective, layers, K)
     D = model.config.hidden_size
     g = torch.Generator().manual_seed(0)
-    cache, recompute, window = (Context(model, mode=m) for m in ("cache", "recompute", "window"))
+    cache = Context(model, mode="cache", engine=engine)
+    assert cache.engine == engine
+    recompute, window = (Context(model, mode=m) for m in ("recompute", "window"))
     W = cache.max_tokens
     assert W == (2 * K - 1 if objective == "dicp" else K)
     stream, wins = [], []

@@ -107,6 +107,7 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     _, test = task_split("darkroom", 3)  # the training dataset's split by default
     assert r["split_seed"] == 3 and r["tasks"] == list(test) and len(r["tasks"]) == 8
     assert np.asarray(r["returns"]).shape == (8, 3) and r["planned_steps"] > 0
+    assert r["engine"] == "lean"  # the default cache runs the lean decoder for a Llama ICRL model
     assert np.isclose(r["mean_return"], np.mean(r["returns"]))
     saved = json.loads((tmp_path / "ev" / "eval_results.json").read_text())
     assert (
