@@ -1,9 +1,12 @@
 """One stacked PPO minibatch step of the batched collector: hand-written gradients vs autograd.
 
-    python benchmarks/bench_ppo_step.py [--learners 81] [--batch 50] [--repeats 3] [--json OUT]
+    python benchmarks/bench_ppo_step.py [--env darkroom] [--learners 81] [--repeats 3] [--json OUT]
 
-The full-Darkroom shape by default: 81 learners (one per task, paper protocol), a rollout of
-100 streams x 20 steps (N = 2,000), minibatches of 50, 2 epochs per timing.  Both paths run the same
+The env's paper PPO settings (DESIGN.md 3: darkroom n_steps 20, batch 50, epochs 20;
+dark-key-to-door 50 / 100 / 10), 81 learners by default (one per task, paper protocol, 100 streams),
+2 epochs per timing.  Also projects the env's full paper dataset (every task x 100 histories x 1,000
+transitions): its PPO minibatch steps, their FLOPs, the FLOP floor at the measured bmm rate, and the
+update time at the measured per-learner step cost (rollouts, recording and writing not included).  Both paths run the same
 ``ppo_update`` on the same random rollout (the speed does not depend on the data); each timing is
 repeated and the best kept, alternating the two paths so that load on a shared machine hits both.
 Also reports the FLOP floor of a step at this machine's measured batched-matmul rate.
@@ -42,12 +45,18 @@ def step_ms(gradients: str, L: int, N: int, b: int, epochs: int = 2) -> float:
     return (time.perf_counter() - t) / (epochs * (N // b)) * 1e3
 
 
+def step_flops(L: int, b: int, d: int = 2, A: int = 5, hidden: int = 64) -> int:
+    """FLOPs of one stacked minibatch step: forward, weight and input gradients of the three layers of
+    2L nets (actor + critic; the critic head is padded to A outputs, as computed)."""
+    macs = 2 * L * b * (d * hidden + hidden * hidden + hidden * A)  # one forward
+    return 2 * macs * 3
+
+
 def matmul_floor_ms(L: int, b: int, hidden: int = 64) -> dict:
-    """A step's FLOPs (forward, weight and input gradients of the three layers of 2L nets) and the
-    time they take at the rate this machine's batched (b x 64) @ (64 x 64) matmul reaches."""
-    n2, d, A = 2 * L, 2, 5
-    macs = n2 * b * (d * hidden + hidden * hidden + hidden * A)  # one forward
-    flops = 2 * macs * 3  # forward + weight gradient + input gradient
+    """A step's FLOPs and the time they take at the rate this machine's batched (b x 64) @ (64 x 64)
+    matmul reaches."""
+    n2 = 2 * L
+    flops = step_flops(L, b, hidden=hidden)
     x, w = torch.randn(n2, b, hidden), torch.randn(n2, hidden, hidden)
     torch.bmm(x, w)
     reps = 50
@@ -60,23 +69,43 @@ def matmul_floor_ms(L: int, b: int, hidden: int = 64) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--env", default="darkroom", help="gridworld env id (its paper PPO settings)")
     p.add_argument("--learners", type=int, default=81)
     p.add_argument("--streams", type=int, default=100)
-    p.add_argument("--n-steps", type=int, default=20)
-    p.add_argument("--batch", type=int, default=50)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--json", default=None)
     a = p.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
-    L, N, b = a.learners, a.streams * a.n_steps, a.batch
+    from lhf_hf.configs.collect import CollectConfig
+    from lhf_hf.envs import get_spec
+
+    cfg = CollectConfig(env_id=a.env, collector="batched")
+    spec, ppo = get_spec(a.env), cfg.ppo
+    L, N, b = a.learners, a.streams * ppo.n_steps, ppo.batch_size
     times = {"autograd": [], "manual": []}
     for _ in range(a.repeats):
         for mode in times:
             times[mode].append(step_ms(mode, L, N, b))
     best = {m: min(v) for m, v in times.items()}
+    floor = matmul_floor_ms(L, b)
+    # the full paper dataset: every task's learner does (steps / n_steps - 1) updates (the last
+    # rollout's update is skipped) of n_epochs x N / b minibatch steps
+    tasks = spec.num_tasks
+    steps_per_learner = (cfg.steps // ppo.n_steps - 1) * ppo.n_epochs * (N // b)
+    total_flops = tasks * steps_per_learner * step_flops(1, b)
+    per_learner_step_s = best["manual"] / 1e3 / L
+    projection = {
+        "tasks": tasks,
+        "minibatch_steps_per_learner": steps_per_learner,
+        "update_flops": total_flops,
+        "flop_floor_s": total_flops / (floor["bmm_gflops"] * 1e9),
+        "updates_at_measured_step_s": tasks * steps_per_learner * per_learner_step_s,
+    }
     out = {
+        "env": a.env,
+        "ppo": {"n_steps": ppo.n_steps, "batch_size": b, "n_epochs": ppo.n_epochs},
         "learners": L,
         "rollout": N,
         "batch": b,
@@ -84,7 +113,8 @@ def main() -> None:
         "step_ms": best,
         "all_ms": times,
         "speedup": best["autograd"] / best["manual"],
-        **matmul_floor_ms(L, b),
+        **floor,
+        "full_dataset": projection,
     }
     print(json.dumps(out, indent=1))
     if a.json:
