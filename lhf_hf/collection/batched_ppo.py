@@ -237,10 +237,11 @@ class ManualGradients:
 
     Why: with autograd a minibatch step of 81 learners x 50 samples spends most of its time outside
     the matmuls: allocating and freeing (2L, b, 64) activations and gradients (2 MB each, so every
-    allocation faults fresh pages), autograd bookkeeping, and copies.  Here every activation and
-    gradient lives in a buffer allocated once per minibatch shape, ops write with ``out=`` / in
-    place, and ``tanh``'s backward reuses the forward's output.  The math is autograd's, op for op
-    (tested against autograd and SB3):
+    allocation is fresh memory: ``tanh`` into a new tensor measured 193 us vs 121 us into a reused
+    one), autograd bookkeeping, and copies.  Here every activation and gradient lives in a buffer
+    allocated once per ``ppo_update`` and minibatch shape, ops write with ``out=`` / in place, and
+    ``tanh``'s backward reuses the forward's output.  The formulas are autograd's (log-softmax is
+    spelled out; results agree to float rounding, tested against autograd and SB3):
 
     - ``d loss / d logp_i = -adv_i * ratio_i * active_i / b`` where ``active_i`` is 1 when the
       unclipped term is the minimum or the ratio lies inside the clip range (``torch.min`` splits a tie
