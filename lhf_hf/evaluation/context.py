@@ -52,6 +52,10 @@ class Context:
     """The tokens of a batch of independent streams and the backbone's hidden states of new ones.
 
     max_tokens: ``W`` of a transition token (default: the model's window, see the module doc).
+    engine: the cached step's forward: ``auto`` (``decode.LeanLlama``, the same function without HF's
+    per-module overhead, wherever the model allows it), ``lean`` (that, or an error saying why not) or
+    ``hf`` (``LlamaModel.forward`` with a ``DynamicCache``).  ``recompute`` and ``window`` always run
+    HF's forward; ``self.engine`` says which ran.
     """
 
     def __init__(
