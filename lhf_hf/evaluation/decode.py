@@ -183,6 +183,7 @@ class LeanLlama:
         if top > len(self.cos):
             size = max(top, 2 * len(self.cos), 1024)
             pos = torch.arange(size)[None]  # (1, size)
+            # rotary_emb reads only the dtype and device of its first argument
             cos, sin = self.rotary(self.norm_w[None, None], pos)  # (1, size, Dh)
             self.cos, self.sin = cos[0], sin[0]
         return self.cos[positions].unsqueeze(2), self.sin[positions].unsqueeze(2)
