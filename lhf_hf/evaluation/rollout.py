@@ -18,6 +18,7 @@ from tqdm.auto import tqdm
 
 from .context import Context
 from .planning import beam_search, greedy_search
+from .tokens import StepTokens
 
 
 @dataclass
@@ -42,7 +43,9 @@ def sample_actions(dist: dict, rng: np.random.Generator, low=-1.0, high=1.0) -> 
     """Sample from the policy with the rollout's own uniform stream (inverse CDF), so that two
     rollouts with the same seed and (numerically) the same policy take the same actions."""
     if "action_logits" in dist:
-        probs = torch.softmax(dist["action_logits"][:, -1].double(), -1).numpy()  # (B, A)
+        logits = dist["action_logits"][:, -1].double().numpy()  # (B, A)
+        probs = np.exp(logits - logits.max(1, keepdims=True))
+        probs /= probs.sum(1, keepdims=True)  # softmax
         u = rng.random(len(probs))[:, None]
         return np.minimum((np.cumsum(probs, 1) < u).sum(1), probs.shape[1] - 1)
     mean = dist["action_mean"][:, -1].double().numpy()
@@ -76,6 +79,10 @@ def rollout(
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     ctx = Context(model, mode=context, engine=engine)
+    tokens = StepTokens(model)
+    # read once: a transformers config attribute costs ~2 us per access
+    K, discrete = c.context_length, c.discrete_actions
+    horizon, beams = c.plan_horizon, c.plan_beams
     H = tasks.horizon
     returns, success, taken = [], [], []
     prev = None  # (state, action, reward, done) of the last step, numpy
@@ -89,46 +96,23 @@ def rollout(
         ep_success = np.zeros(B, bool)
         for t in range(H):
             s = _tensor(state)[:, None]  # (B, 1, S)
-            if prev is None:
-                zeros_a = (
-                    np.zeros((B, c.action_dim), np.float32)
-                    if not c.discrete_actions
-                    else np.zeros(B, np.int64)
-                )
-                p_state, p_action, p_reward, p_done = (
-                    np.zeros_like(state),
-                    zeros_a,
-                    np.zeros(B),
-                    np.zeros(B, bool),
-                )
-                has_prev = torch.zeros(B, 1, dtype=torch.bool)
-            else:
-                p_state, p_action, p_reward, p_done = prev
-                has_prev = torch.ones(B, 1, dtype=torch.bool)
-            tok = model.embed_transitions(
-                states=s,
-                prev_states=_tensor(p_state)[:, None],
-                prev_actions=_tensor(p_action)[:, None],
-                prev_rewards=_tensor(p_reward, torch.float32)[:, None],
-                prev_dones=_tensor(p_done)[:, None],
-                has_prev=has_prev,
-            )  # (B, 1, D)
+            tok = tokens.transition(state, prev)  # (B, 1, D)
             is_query = None
             if dicp and prev is not None:  # the query-action token of the step just taken
-                q = model.embed_query_actions(_tensor(p_state)[:, None], _tensor(p_action)[:, None])
+                q = tokens.query(prev[0], prev[1])  # (B, 1, D)
                 tok = torch.cat([q, tok], dim=1)  # (B, 2, D)
                 is_query = [True, False]
             hidden = ctx.append(tok, is_query)[:, -1:]  # (B, 1, D)
             dist = model.action_distribution(hidden)
-            full = steps + 1 >= c.context_length  # the context holds K transitions
-            if plan and full and c.discrete_actions:
+            full = steps + 1 >= K  # the context holds K transitions
+            if plan and full and discrete:
                 action, _ = beam_search(
                     model,
                     ctx,
                     s[:, 0],
                     dist["action_logits"][:, 0],
-                    min(c.plan_horizon, H - t),
-                    c.plan_beams,
+                    min(horizon, H - t),
+                    beams,
                 )
                 action = action.numpy()
                 planned += 1

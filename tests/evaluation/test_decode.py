@@ -96,5 +96,8 @@ def test_unsupported_models_fall_back_or_fail_clearly():
         Context(model.eval(), engine="fast")
     with pytest.raises(ValueError, match="does not support this model: hidden_act 'gelu'"):
         LeanLlama(_model(hidden_act="gelu"))
+    # the numpy decoder computes in float32: other dtypes run HF's forward
+    assert "dtype torch.float64" in supported(_model().double())
+    assert Context(_model().double(), mode="cache").engine == "hf"
     # the recompute and window modes always run HF's forward
     assert Context(model.eval(), mode="recompute").engine == "hf"
