@@ -1,6 +1,7 @@
 """One stacked PPO minibatch step of the batched collector: hand-written gradients vs autograd.
 
     python benchmarks/bench_ppo_step.py [--env darkroom] [--learners 81] [--repeats 3] [--json OUT]
+                                        [--device cuda]
 
 The env's paper PPO settings (DESIGN.md 3: darkroom n_steps 20, batch 50, epochs 20;
 dark-key-to-door 50 / 100 / 10), 81 learners by default (one per task, paper protocol, 100 streams),
@@ -10,6 +11,8 @@ update time at the measured per-learner step cost (rollouts, recording and writi
 ``ppo_update`` on the same random rollout (the speed does not depend on the data); each timing is
 repeated and the best kept, alternating the two paths so that load on a shared machine hits both.
 Also reports the FLOP floor of a step at this machine's measured batched-matmul rate.
+``--device cuda`` times the same update on a GPU (fp32, TF32 off: the same arithmetic), for the
+question of what a GPU collector would gain; the collector itself runs its updates on the CPU.
 """
 
 from __future__ import annotations
@@ -22,10 +25,17 @@ import torch
 
 from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer, ppo_update
 
+DEVICE = torch.device("cpu")  # set from --device
+
+
+def sync() -> None:
+    if DEVICE.type == "cuda":
+        torch.cuda.synchronize()
+
 
 def rollout(L: int, N: int) -> Rollout:
     g = torch.Generator().manual_seed(0)
-    return Rollout(
+    data = Rollout(
         obs=torch.randint(0, 9, (L, N, 2), generator=g).float(),
         actions=torch.randint(0, 5, (L, N), generator=g),
         old_logp=torch.log(torch.full((L, N), 0.2)) + 0.3 * torch.randn(L, N, generator=g),
@@ -33,15 +43,18 @@ def rollout(L: int, N: int) -> Rollout:
         advantages=torch.randn(L, N, generator=g),
         returns=torch.randn(L, N, generator=g),
     )
+    return Rollout(*(getattr(data, f).to(DEVICE) for f in data.__dataclass_fields__))
 
 
 def step_ms(gradients: str, L: int, N: int, b: int, epochs: int = 2) -> float:
-    policy = StackedPolicy(L, 2, 5, torch.Generator().manual_seed(1))
+    policy = StackedPolicy(L, 2, 5, torch.Generator().manual_seed(1)).to(DEVICE)
     opt = make_optimizer(policy, 3e-4)
-    data, g = rollout(L, N), torch.Generator().manual_seed(2)
+    data, g = rollout(L, N), torch.Generator(device=DEVICE).manual_seed(2)
     ppo_update(policy, opt, data, 1, b, generator=g, gradients=gradients)  # warm-up, state init
+    sync()
     t = time.perf_counter()
     ppo_update(policy, opt, data, epochs, b, generator=g, gradients=gradients)
+    sync()
     return (time.perf_counter() - t) / (epochs * (N // b)) * 1e3
 
 
@@ -57,12 +70,15 @@ def matmul_floor_ms(L: int, b: int, hidden: int = 64) -> dict:
     matmul reaches."""
     n2 = 2 * L
     flops = step_flops(L, b, hidden=hidden)
-    x, w = torch.randn(n2, b, hidden), torch.randn(n2, hidden, hidden)
+    x = torch.randn(n2, b, hidden, device=DEVICE)
+    w = torch.randn(n2, hidden, hidden, device=DEVICE)
     torch.bmm(x, w)
     reps = 50
+    sync()
     t = time.perf_counter()
     for _ in range(reps):
         torch.bmm(x, w)
+    sync()
     rate = 2 * n2 * b * hidden * hidden * reps / (time.perf_counter() - t)
     return {"step_flops": flops, "bmm_gflops": rate / 1e9, "floor_ms": flops / rate * 1e3}
 
@@ -75,9 +91,13 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--json", default=None)
+    p.add_argument("--device", default="cpu", help="cpu or cuda (fp32, TF32 off)")
     a = p.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
+    global DEVICE
+    DEVICE = torch.device(a.device)
+    torch.backends.cuda.matmul.allow_tf32 = False  # exact fp32, the CPU's arithmetic
     from lhf_hf.configs.collect import CollectConfig
     from lhf_hf.envs import get_spec
 
@@ -110,6 +130,9 @@ def main() -> None:
         "rollout": N,
         "batch": b,
         "torch_threads": torch.get_num_threads(),
+        "device": str(DEVICE)
+        + (f" ({torch.cuda.get_device_name(DEVICE)})" if DEVICE.type == "cuda" else ""),
+        "torch": torch.__version__,
         "step_ms": best,
         "all_ms": times,
         "speedup": best["autograd"] / best["manual"],

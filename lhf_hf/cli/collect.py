@@ -34,6 +34,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--tasks-per-chunk", type=int, default=None, help="batched: tasks trained together"
     )
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="batched: where the stacked PPO learners run, cpu (default) or cuda[:N]",
+    )
     p.add_argument("--seed", type=int, default=0, help="root seed of the learners")
     p.add_argument(
         "--split-seed", type=int, default=0, help="train/test split seed (and Meta-World goals)"
@@ -67,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         split_seed=args.split_seed,
         noisy_fraction=args.noisy_fraction,
+        tasks_per_chunk=args.tasks_per_chunk,
+        device=args.device,
         **kwargs,
     )
     ds = collect(

@@ -1,7 +1,26 @@
-"""Collect learning histories: SB3 reference collector, recorder, protocols (DESIGN.md 3)."""
+"""Collect learning histories: SB3 reference collector, recorder, protocols (DESIGN.md 3).
 
-from .collect import collect
-from .recorder import RecordingVecEnv
-from .sb3_collector import collect_task_histories, plan_task
+The names below are imported on first use (PEP 562), so that ``lhf_hf.collection.batched_ppo``
+imports with torch alone (e.g. on a GPU machine without Stable-Baselines3 or ``datasets``).
+"""
 
-__all__ = ["RecordingVecEnv", "collect", "collect_task_histories", "plan_task"]
+from importlib import import_module
+
+_EXPORTS = {
+    "collect": ".collect",
+    "RecordingVecEnv": ".recorder",
+    "collect_task_histories": ".sb3_collector",
+    "plan_task": ".sb3_collector",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(import_module(_EXPORTS[name], __name__), name)
+        # importing the submodule ``.collect`` bound the package attribute ``collect`` to that
+        # module: rebind it to the function, as the eager ``from .collect import collect`` did
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

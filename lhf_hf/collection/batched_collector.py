@@ -24,6 +24,16 @@ from lhf_hf.histories.schema import TaskHistories
 from .batched_ppo import Rollout, StackedPolicy, gae, make_optimizer, ppo_update
 
 
+def check_device(name: str) -> torch.device:
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError(
+            f"CollectConfig.device={name!r}, but torch sees no CUDA device here "
+            f"(torch {torch.__version__}); collect with device='cpu'"
+        )
+    return device
+
+
 def chunk_seed(seed: int, chunk: int, size: int) -> int:
     return int(np.random.SeedSequence([seed, chunk, size]).generate_state(1)[0]) & 0x7FFFFFFF
 
@@ -40,13 +50,17 @@ def collect_chunk(
     else:
         per_task, E = 1, H - n_random  # 1 learner x (H - n_random) streams
     seed = chunk_seed(config.seed, chunk, config.tasks_per_chunk)
+    device = check_device(config.device)
     gen = torch.Generator().manual_seed(seed)
     np_rng = np.random.default_rng(seed)
     learner_tasks = np.repeat(np.asarray(tasks, dtype=np.int64), per_task)  # (L,)
     L = learner_tasks.size
     core = make_batched(config.env_id, np.repeat(learner_tasks, E))  # L * E copies, learner-major
     obs_dim = spec.state_space.shape[0]
-    policy = StackedPolicy(L, obs_dim, spec.action_space.n, gen)
+    # initialised on the CPU from the chunk's seed whatever the device: the same initial learners
+    policy = StackedPolicy(L, obs_dim, spec.action_space.n, gen).to(device)
+    if device.type != "cpu":  # sampling and permutations on a GPU draw from its own generator
+        gen = torch.Generator(device).manual_seed(seed)
     opt = make_optimizer(policy, p.learning_rate)
 
     # Recording: (L, E, steps) — small ints while collecting, int64 in the dataset.
@@ -58,13 +72,19 @@ def collect_chunk(
     rec_done = np.zeros((L, E, steps), dtype=bool)
 
     T = p.n_steps
-    buf_obs = torch.zeros(L, E, T, obs_dim)
-    buf_act = torch.zeros(L, E, T, dtype=torch.int64)
-    buf_logp, buf_val, buf_rew = torch.zeros(L, E, T), torch.zeros(L, E, T), torch.zeros(L, E, T)
-    buf_start = torch.zeros(L, E, T, dtype=torch.bool)
+    kw = {"device": device}
+    buf_obs = torch.zeros(L, E, T, obs_dim, **kw)
+    buf_act = torch.zeros(L, E, T, dtype=torch.int64, **kw)
+    buf_logp, buf_val = torch.zeros(L, E, T, **kw), torch.zeros(L, E, T, **kw)
+    buf_rew = torch.zeros(L, E, T, **kw)
+    buf_start = torch.zeros(L, E, T, dtype=torch.bool, **kw)
+
+    def to_device(x: np.ndarray, dtype=None) -> torch.Tensor:
+        t = torch.from_numpy(x if dtype is None else x.astype(dtype))
+        return t.to(device)
 
     obs = core.reset()  # (L*E, 2)
-    episode_start = torch.ones(L, E, dtype=torch.bool)
+    episode_start = torch.ones(L, E, dtype=torch.bool, **kw)
     bar = tqdm(
         total=steps,
         desc=f"chunk {chunk} ({len(tasks)} tasks, {L * E} copies)",
@@ -77,22 +97,21 @@ def collect_chunk(
         for t in range(steps):
             bar.update(1)
             k = t % T
-            obs_t = torch.from_numpy(obs.reshape(L, E, obs_dim).astype(np.float32))  # (L, E, d)
+            obs_t = to_device(obs.reshape(L, E, obs_dim), np.float32)  # (L, E, d)
             rec_opt[:, :, t] = core.optimal_action().reshape(L, E)
             actions, logp, values = policy.act(obs_t, gen)  # (L, E) each
-            next_obs, reward, done = core.step(actions.reshape(-1).numpy())
+            actions_np = actions.cpu().numpy()  # (L, E)
+            next_obs, reward, done = core.step(actions_np.reshape(-1))
             rec_obs[:, :, t] = obs.reshape(L, E, obs_dim)
-            rec_act[:, :, t] = actions.numpy()
+            rec_act[:, :, t] = actions_np
             rec_rew[:, :, t] = reward.reshape(L, E)
             rec_next[:, :, t] = next_obs.reshape(L, E, obs_dim)
             rec_done[:, :, t] = done.reshape(L, E)
-            r = torch.from_numpy(reward.reshape(L, E))
-            done_t = torch.from_numpy(done.reshape(L, E))
+            r = to_device(reward.reshape(L, E))
+            done_t = to_device(done.reshape(L, E))
             if done.any():
                 # SB3: on a time-limit truncation, add gamma * V(true final state) to the reward.
-                final_v = policy.value(
-                    torch.from_numpy(next_obs.reshape(L, E, obs_dim).astype(np.float32))
-                )
+                final_v = policy.value(to_device(next_obs.reshape(L, E, obs_dim), np.float32))
                 r = r + p.gamma * final_v * done_t
                 obs = core.reset(done)
             else:
@@ -101,9 +120,7 @@ def collect_chunk(
             buf_val[:, :, k], buf_rew[:, :, k], buf_start[:, :, k] = values, r, episode_start
             episode_start = done_t
             if k == T - 1 and t < steps - 1:  # the last rollout's update cannot change the data
-                last_v = policy.value(
-                    torch.from_numpy(obs.reshape(L, E, obs_dim).astype(np.float32))
-                )
+                last_v = policy.value(to_device(obs.reshape(L, E, obs_dim), np.float32))
                 adv, ret = gae(buf_rew, buf_val, buf_start, last_v, done_t, p.gamma)
                 flat = lambda x: x.reshape(L, E * T, *x.shape[3:])  # noqa: E731 - (L, E, T, ...) -> (L, E*T, ...) env-major like SB3
                 with torch.enable_grad():

@@ -182,7 +182,8 @@ def ppo_update(
     ``permutations``: one (L, N) index tensor per epoch (tests pass SB3's); by default each learner
     draws its own random permutation per epoch.  The rollout is permuted once per epoch and the
     minibatches are then contiguous slices (SB3 indexes each minibatch: same samples, fewer ops).
-    ``gradients``: ``"manual"`` (default, fast) computes the loss gradient by hand into preallocated
+    Runs on the device of ``policy`` and ``data`` (CPU in the collector; the benchmark also times
+    CUDA).  ``gradients``: ``"manual"`` (default, fast) computes the loss gradient by hand into preallocated
     buffers (``ManualGradients``); ``"autograd"`` is the plain PyTorch reference.  Both are tested
     against SB3's ``PPO.train``.
     """
@@ -197,8 +198,8 @@ def ppo_update(
         perm = (
             permutations[epoch]
             if permutations is not None
-            else torch.argsort(torch.rand(L, N, generator=generator), dim=1)
-        )  # (L, N)
+            else torch.argsort(torch.rand(L, N, generator=generator, device=data.obs.device), dim=1)
+        )  # (L, N); on the data's device (a CUDA rollout needs a CUDA generator)
         obs_e = data.obs.gather(1, perm.unsqueeze(-1).expand(-1, -1, d))  # (L, N, d)
         act_e, adv_e = data.actions.gather(1, perm), data.advantages.gather(1, perm)
         logp_e, ret_e = data.old_logp.gather(1, perm), data.returns.gather(1, perm)
@@ -262,14 +263,15 @@ class ManualGradients:
         if (b, d) not in self.buffers:
             n2 = 2 * self.policy.num_learners
             widths = [w.shape[-1] for w in self.policy.net.weights]  # [64, 64, A]
+            kw = {"device": self.policy.net.weights[0].device}  # the policy's device
             self.buffers[(b, d)] = {
-                "x": torch.empty(n2, b, d),
-                "h1": torch.empty(n2, b, widths[0]),
-                "h2": torch.empty(n2, b, widths[1]),
-                "out": torch.empty(n2, b, widths[2]),
-                "dout": torch.zeros(n2, b, widths[2]),  # critic columns 1.. stay zero
-                "dh2": torch.empty(n2, b, widths[1]),
-                "dh1": torch.empty(n2, b, widths[0]),
+                "x": torch.empty(n2, b, d, **kw),
+                "h1": torch.empty(n2, b, widths[0], **kw),
+                "h2": torch.empty(n2, b, widths[1], **kw),
+                "out": torch.empty(n2, b, widths[2], **kw),
+                "dout": torch.zeros(n2, b, widths[2], **kw),  # critic columns 1.. stay zero
+                "dh2": torch.empty(n2, b, widths[1], **kw),
+                "dh1": torch.empty(n2, b, widths[0], **kw),
             }
         return self.buffers[(b, d)]
 

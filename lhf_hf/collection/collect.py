@@ -188,6 +188,10 @@ def collect(
 ) -> HistoryDataset:
     """Collect ``config`` into ``out`` and return the finished dataset."""
     out = Path(out)
+    if config.collector == "batched":
+        from .batched_collector import check_device
+
+        check_device(config.device)  # before anything is written
     ranks = _Ranks()
     complete = resume and is_complete(
         out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from dataclasses import dataclass, field
 
 from lhf_hf.envs import get_spec
@@ -139,6 +140,13 @@ class CollectConfig:
     sac: SAC settings.
     tasks_per_chunk: batched collector: tasks trained together (default: as many as fit in
         ~50M transitions).  Part of the data's identity: it sets the chunks' random streams.
+    device: batched collector: where the stacked PPO learners act and learn, ``cpu`` or
+        ``cuda[:N]`` (the environments always step on the CPU).  The same algorithm and
+        initialisation; on CUDA the action sampling and minibatch permutations draw from the
+        device's generator, so the data differ from a CPU run's: part of the data's identity
+        (the default ``cpu`` is left out of it, so datasets from before this field keep theirs).
+        Availability is checked when collecting, not here, so such a dataset's config still loads
+        on a machine without a GPU.
     """
 
     env_id: str
@@ -155,6 +163,7 @@ class CollectConfig:
     ppo: PPOSettings | None = None
     sac: SACSettings = field(default_factory=SACSettings)
     tasks_per_chunk: int | None = None
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
@@ -196,6 +205,14 @@ class CollectConfig:
         if self.ppo is None:
             self.ppo = ppo_preset(self.env_id)
         self.tasks = parse_tasks(self.tasks, self.env_id, self.split_seed)
+        if not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
+            raise ValueError(
+                f"CollectConfig.device must be 'cpu' or 'cuda[:N]', got {self.device!r}"
+            )
+        if self.device != "cpu" and self.collector != "batched":
+            raise ValueError(
+                f"CollectConfig.device={self.device!r} needs collector='batched' (SB3 runs on the CPU)"
+            )
         if self.collector == "batched":
             if spec.family != "gridworld" or self.algo != "ppo":
                 raise ValueError(
@@ -238,4 +255,6 @@ class CollectConfig:
         d.pop("workers")
         if self.collector == "sb3":
             d.pop("tasks_per_chunk")  # SB3 tasks do not depend on chunks
+        if self.device == "cpu":
+            d.pop("device")  # the default, absent from the identities of older datasets
         return d

@@ -1,6 +1,9 @@
 """``lhf collect`` / ``lhf derive`` from the command line: outputs and clear errors."""
 
+import json
+
 import pytest
+import torch
 
 from lhf_hf.cli.main import main
 
@@ -56,3 +59,16 @@ def test_unknown_env_and_protocol(tmp_path, capsys):
 def test_derive_missing_source(tmp_path, capsys):
     assert main(["derive", "half", str(tmp_path / "none"), "--out", str(tmp_path / "h")]) == 1
     assert "no dataset" in capsys.readouterr().err
+
+
+def test_batched_options_reach_the_dataset(tmp_path, capsys):
+    out = tmp_path / "b"
+    base = ["collect", "darkroom", "--collector", "batched", "--tasks", "3,40,62"]
+    base += ["--histories", "2", "--steps", "40", "--no-progress"]
+    assert main([*base, "--out", str(out), "--tasks-per-chunk", "2"]) == 0
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert '"tasks_per_chunk": 2' in json.dumps(info)  # the flag is not dropped on the way
+    if not torch.cuda.is_available():  # a clear error before any work
+        assert main([*base, "--out", str(tmp_path / "g"), "--device", "cuda"]) == 1
+        assert "torch sees no CUDA device" in capsys.readouterr().err
+        assert not (tmp_path / "g").exists()

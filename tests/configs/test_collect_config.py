@@ -22,6 +22,8 @@ from lhf_hf.configs.collect import ppo_preset
         (dict(protocol="noisy", histories=1, noisy_fraction=0.9), "no learner histories"),
         (dict(collector="jax"), "collector must be one of"),
         (dict(workers=0), "workers"),
+        (dict(device="gpu", collector="batched"), "device must be 'cpu' or 'cuda\\[:N\\]'"),
+        (dict(device="cuda"), "needs collector='batched'"),
     ],
 )
 def test_rejects(kwargs, match):
@@ -48,3 +50,11 @@ def test_tasks_and_presets():
     assert c.num_random_histories == 3 and c.episodes_per_history == 50
     assert CollectConfig.from_dict(c.to_dict()) == c
     assert "workers" not in c.identity()
+
+
+def test_device_is_part_of_the_identity_unless_default():
+    cpu = CollectConfig("darkroom", collector="batched")
+    assert cpu.device == "cpu" and "device" not in cpu.identity()  # as before the field existed
+    gpu = CollectConfig("darkroom", collector="batched", device="cuda:1")  # no GPU needed here
+    assert gpu.identity()["device"] == "cuda:1"
+    assert CollectConfig.from_dict(gpu.to_dict()) == gpu

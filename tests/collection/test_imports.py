@@ -1,0 +1,28 @@
+"""``lhf_hf.collection`` imports its collectors on first use: the batched PPO needs torch alone."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def test_batched_ppo_imports_without_sb3_or_datasets():
+    code = (
+        "import sys; import lhf_hf.collection.batched_ppo; "
+        "heavy = [m for m in ('stable_baselines3', 'datasets', 'gymnasium') if m in sys.modules]; "
+        "print(heavy)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_lazy_exports_are_the_functions():
+    import lhf_hf.collection as col
+    from lhf_hf.collection import collect
+
+    assert callable(collect) and collect.__module__ == "lhf_hf.collection.collect"
+    assert col.collect is collect  # not the same-named submodule
+    assert callable(col.plan_task) and callable(col.collect_task_histories)
+    assert col.RecordingVecEnv.__name__ == "RecordingVecEnv"
+    with pytest.raises(AttributeError, match="nothing_here"):
+        col.nothing_here  # noqa: B018
