@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from datetime import timedelta
 from multiprocessing import get_context
 from pathlib import Path
@@ -158,13 +158,26 @@ def _run_batched(
         progress,
         f"batched, {torch_threads()} torch threads",
     )
+    # A chunk's tasks are written by ``workers`` threads: each task has its own files, and
+    # parquet encoding and hashing release the GIL.  Measured on a 16-core GPU machine, writing
+    # was two thirds of a Key-to-Door collection with one writer (BENCHMARKS.md).
+    writers = ThreadPoolExecutor(max_workers=config.workers) if config.workers > 1 else None
     try:
         for c in todo:
             histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c, progress=progress)
-            for p, th in zip(chunks[c], histories, strict=True):
-                write_task(out, p, th, config.horizon)
+            jobs = list(zip(chunks[c], histories, strict=True))
+            if writers is None:
+                for p, th in jobs:
+                    write_task(out, p, th, config.horizon)
+            else:
+                done = [writers.submit(write_task, out, p, th, config.horizon) for p, th in jobs]
+                for job in done:
+                    job.result()  # re-raises a writer's error here
+            del histories, jobs
             bar.update(len(chunks[c]))
     finally:
+        if writers is not None:
+            writers.shutdown()
         bar.close()
 
 

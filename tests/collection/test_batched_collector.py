@@ -13,8 +13,9 @@ CFG = dict(
 
 
 def test_same_seed_same_data_and_chunks_matter(tmp_path):
-    a = collect(CollectConfig(**CFG), tmp_path / "a", progress=False)
-    b = collect(CollectConfig(**CFG), tmp_path / "b", progress=False)
+    # 3 writer threads vs writing in this thread: the same files
+    a = collect(CollectConfig(**CFG, workers=3), tmp_path / "a", progress=False)
+    b = collect(CollectConfig(**CFG, workers=1), tmp_path / "b", progress=False)
     assert a.fingerprint == b.fingerprint and a.frame_table().equals(b.frame_table())
     assert a.lhf["collect"]["tasks_per_chunk"] == 2 and a.lhf["collect"]["collector"] == "batched"
     c = collect(CollectConfig(**{**CFG, "tasks_per_chunk": 3}), tmp_path / "c", progress=False)
