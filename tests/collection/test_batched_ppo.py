@@ -18,6 +18,8 @@ from lhf_hf.collection.batched_ppo import (
 )
 from lhf_hf.envs import make
 
+from .rollouts import random_rollout
+
 
 def test_gae_equals_sb3():
     rng = np.random.default_rng(0)
@@ -175,25 +177,12 @@ def test_one_update_equals_sb3_train(n_epochs, batch_size, gradients):
     _compare(policy, model, 1, atol=2e-5)
 
 
-def _random_rollout(L, N, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    return Rollout(
-        obs=torch.randint(0, 9, (L, N, 2), generator=g).float(),
-        actions=torch.randint(0, 5, (L, N), generator=g),
-        # old log-probs near the policy's (~log 1/5) so that ratios land on both sides of the clip
-        old_logp=torch.log(torch.full((L, N), 0.2)) + 0.3 * torch.randn(L, N, generator=g),
-        old_values=torch.randn(L, N, generator=g),
-        advantages=torch.randn(L, N, generator=g),
-        returns=torch.randn(L, N, generator=g),
-    )
-
-
 def test_manual_gradients_equal_autograd():
     """One minibatch: the hand-written gradient of every parameter equals autograd's, with ratios
     inside and outside the clip range and advantages of both signs."""
     L, b = 4, 30
     policy = StackedPolicy(L, 2, 5, torch.Generator().manual_seed(1))
-    data = _random_rollout(L, b)
+    data = random_rollout(L, b)
     adv = data.advantages
     adv = (adv - adv.mean(1, keepdim=True)) / (adv.std(1, keepdim=True) + 1e-8)
     args = (data.obs, data.actions, adv, data.old_logp, data.returns)
@@ -215,7 +204,7 @@ def test_manual_update_equals_autograd_update_over_many_steps():
     """Two epochs of minibatch steps (Adam through FusedAdamStep) stay within float rounding of the
     autograd path with torch's own Adam.step."""
     L, N = 3, 200
-    data = _random_rollout(L, N, seed=2)
+    data = random_rollout(L, N, seed=2)
     out = {}
     for gradients in ("autograd", "manual"):
         policy = StackedPolicy(L, 2, 5, torch.Generator().manual_seed(4))
@@ -239,5 +228,5 @@ def test_unknown_gradients_mode_is_an_error():
     policy = StackedPolicy(1, 2, 5, torch.Generator())
     with pytest.raises(ValueError, match="gradients must be one of"):
         ppo_update(
-            policy, make_optimizer(policy, 3e-4), _random_rollout(1, 10), 1, 5, gradients="jax"
+            policy, make_optimizer(policy, 3e-4), random_rollout(1, 10), 1, 5, gradients="jax"
         )

@@ -5,6 +5,8 @@ import torch
 
 from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer, ppo_update
 
+from .rollouts import random_rollout
+
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 
 
@@ -13,15 +15,8 @@ cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA de
 def test_ppo_update_on_cuda_equals_cpu(gradients):
     torch.backends.cuda.matmul.allow_tf32 = False  # exact fp32 products, as on the CPU
     L, N, b = 3, 40, 10
+    data = random_rollout(L, N)
     g = torch.Generator().manual_seed(0)
-    data = Rollout(
-        obs=torch.randint(0, 9, (L, N, 2), generator=g).float(),
-        actions=torch.randint(0, 5, (L, N), generator=g),
-        old_logp=torch.log(torch.full((L, N), 0.2)) + 0.3 * torch.randn(L, N, generator=g),
-        old_values=torch.randn(L, N, generator=g),
-        advantages=torch.randn(L, N, generator=g),
-        returns=torch.randn(L, N, generator=g),
-    )
     perms = [torch.argsort(torch.rand(L, N, generator=g), dim=1) for _ in range(2)]
     results = []
     for device in ("cpu", "cuda"):
