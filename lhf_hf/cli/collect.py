@@ -39,6 +39,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         default="cpu",
         help="batched: where the stacked PPO learners run, cpu (default) or cuda[:N]",
     )
+    p.add_argument(
+        "--ppo-backend",
+        default="auto",
+        choices=["auto", "kernel", "torch"],
+        help="batched, CPU: PPO updates by the C++ kernel (built on first use with g++) or torch ops; "
+        "auto (default): the kernel where it builds",
+    )
     p.add_argument("--seed", type=int, default=0, help="root seed of the learners")
     p.add_argument(
         "--split-seed", type=int, default=0, help="train/test split seed (and Meta-World goals)"
@@ -74,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         noisy_fraction=args.noisy_fraction,
         tasks_per_chunk=args.tasks_per_chunk,
         device=args.device,
+        ppo_backend=args.ppo_backend,
         **kwargs,
     )
     ds = collect(

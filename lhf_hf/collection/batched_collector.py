@@ -13,6 +13,8 @@ which chunk it is in (``tasks_per_chunk`` is part of the config).
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import torch
 from tqdm.auto import tqdm
@@ -21,7 +23,10 @@ from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec, make_batched
 from lhf_hf.histories.schema import TaskHistories
 
-from .batched_ppo import Rollout, StackedPolicy, gae, make_optimizer, ppo_update
+from . import native
+from .batched_ppo import HIDDEN, Rollout, StackedPolicy, gae, make_optimizer, ppo_update
+
+logger = logging.getLogger(__name__)
 
 
 def check_device(name: str) -> torch.device:
@@ -32,6 +37,21 @@ def check_device(name: str) -> torch.device:
             f"(torch {torch.__version__}); collect with device='cpu'"
         )
     return device
+
+
+def resolve_ppo_backend(config: CollectConfig) -> str:
+    """``config.ppo_backend`` with ``auto`` decided: ``kernel`` on the CPU where it builds, else
+    ``torch`` (logged).  ``kernel`` that cannot build raises ``KernelUnavailable`` here."""
+    if config.ppo_backend == "torch" or config.device != "cpu":
+        return "torch"
+    try:
+        native.load(HIDDEN[0])
+    except native.KernelUnavailable as e:
+        if config.ppo_backend == "kernel":
+            raise
+        logger.warning("batched collector: PPO updates with torch ops (%s)", e)
+        return "torch"
+    return "kernel"
 
 
 def chunk_seed(seed: int, chunk: int, size: int) -> int:
@@ -62,6 +82,7 @@ def collect_chunk(
     if device.type != "cpu":  # sampling and permutations on a GPU draw from its own generator
         gen = torch.Generator(device).manual_seed(seed)
     opt = make_optimizer(policy, p.learning_rate)
+    gradients = {"kernel": "kernel", "torch": "manual", "auto": "auto"}[config.ppo_backend]
 
     # Recording: (L, E, steps) — small ints while collecting, int64 in the dataset.
     rec_obs = np.zeros((L, E, steps, obs_dim), dtype=np.int16)
@@ -138,6 +159,7 @@ def collect_chunk(
                         p.n_epochs,
                         p.batch_size,
                         generator=gen,
+                        gradients=gradients,
                     )
 
     bar.close()

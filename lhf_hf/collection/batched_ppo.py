@@ -15,17 +15,23 @@ Read top to bottom: ``StackedMLP`` -> ``StackedPolicy`` -> ``gae`` -> ``ppo_upda
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from . import native
+
+logger = logging.getLogger(__name__)
+
 CLIP_RANGE = 0.2
 GAE_LAMBDA = 0.95
 VF_COEF = 0.5
 MAX_GRAD_NORM = 0.5
 ADAM_EPS = 1e-5  # SB3 sets eps=1e-5 for the policies' Adam
+HIDDEN = (64, 64)  # SB3 MlpPolicy's net_arch for actor and critic
 
 
 class StackedMLP(nn.Module):
@@ -80,7 +86,7 @@ class StackedPolicy(nn.Module):
         obs_dim: int,
         num_actions: int,
         generator: torch.Generator,
-        hidden: tuple[int, int] = (64, 64),
+        hidden: tuple[int, int] = HIDDEN,
     ) -> None:
         super().__init__()
         s2 = math.sqrt(2)
@@ -164,7 +170,7 @@ class Rollout:
     returns: torch.Tensor  # (L, N)
 
 
-GRADIENTS = ("manual", "autograd")
+GRADIENTS = ("auto", "kernel", "manual", "autograd")
 
 
 def ppo_update(
@@ -175,7 +181,7 @@ def ppo_update(
     batch_size: int,
     permutations: list[torch.Tensor] | None = None,
     generator: torch.Generator | None = None,
-    gradients: str = "manual",
+    gradients: str = "auto",
 ) -> None:
     """SB3 ``PPO.train`` for every learner at once.
 
@@ -183,12 +189,37 @@ def ppo_update(
     draws its own random permutation per epoch.  The rollout is permuted once per epoch and the
     minibatches are then contiguous slices (SB3 indexes each minibatch: same samples, fewer ops).
     Runs on the device of ``policy`` and ``data`` (CPU in the collector; the benchmark also times
-    CUDA).  ``gradients``: ``"manual"`` (default, fast) computes the loss gradient by hand into preallocated
-    buffers (``ManualGradients``); ``"autograd"`` is the plain PyTorch reference.  Both are tested
-    against SB3's ``PPO.train``.
+    CUDA).  ``gradients``:
+
+    - ``"kernel"``: the C++ kernel (``native.py``, ``kernels/ppo_update.cpp``): each learner's whole
+      update in cache, learners split across ``torch.get_num_threads()`` threads; CPU, float32 and an
+      Adam optimizer only.  Without ``permutations`` it draws each learner's permutations itself from
+      one seed taken from ``generator``, so its minibatches differ from the torch paths' (same law).
+    - ``"manual"``: torch ops with the loss gradient written by hand into preallocated buffers
+      (``ManualGradients``); any device.
+    - ``"autograd"``: the plain PyTorch reference.
+    - ``"auto"`` (default): the kernel where it applies and builds, else ``"manual"`` (logged once).
+
+    All are tested against SB3's ``PPO.train``.
     """
     if gradients not in GRADIENTS:
         raise ValueError(f"gradients must be one of {GRADIENTS}, got {gradients!r}")
+    if gradients in ("auto", "kernel"):
+        reason = kernel_unsupported(policy, optimizer, data)
+        if reason is None:
+            try:
+                native.load(policy.net.weights[0].shape[-1])
+            except native.KernelUnavailable as e:
+                reason = str(e)
+        if reason is None:
+            _ppo_update_kernel(
+                policy, optimizer, data, n_epochs, batch_size, permutations, generator
+            )
+            return
+        if gradients == "kernel":
+            raise native.KernelUnavailable(reason)
+        _warn_fallback(reason)
+        gradients = "manual"
     L, N = data.actions.shape
     d = data.obs.shape[-1]
     params = list(policy.parameters())
@@ -219,6 +250,98 @@ def ppo_update(
                 _ppo_loss(policy, obs, actions, adv, logp_e[:, mb], ret_e[:, mb]).backward()
             clip_grad_norm_per_learner(params, MAX_GRAD_NORM, L)
             step()
+
+
+def kernel_unsupported(policy: StackedPolicy, optimizer, data: Rollout) -> str | None:
+    """Why the C++ kernel cannot run this update (None when it can)."""
+    w = policy.net.weights
+    if any(p.device.type != "cpu" or p.dtype != torch.float32 for p in policy.parameters()):
+        return "the kernel runs float32 CPU policies only"
+    if data.obs.device.type != "cpu":
+        return "the kernel needs the rollout on the CPU"
+    hidden = w[0].shape[-1]
+    if w[1].shape[-2:] != (hidden, hidden) or hidden % 16 != 0:
+        return f"the kernel needs two equal hidden layers, a multiple of 16 wide (got {tuple(w[1].shape[-2:])})"
+    if not isinstance(optimizer, torch.optim.Adam) or len(optimizer.param_groups) != 1:
+        return "the kernel implements a single-group torch.optim.Adam"
+    group = optimizer.param_groups[0]
+    if group["amsgrad"] or group["weight_decay"] != 0 or group["maximize"]:
+        return "the kernel implements Adam without amsgrad, weight decay or maximize"
+    if isinstance(group["lr"], torch.Tensor):
+        return "the kernel needs a float learning rate"
+    if {id(p) for p in group["params"]} != {id(p) for p in policy.parameters()}:
+        return "the optimizer must hold exactly the policy's parameters"
+    return None
+
+
+_warned: set[str] = set()
+
+
+def _warn_fallback(reason: str) -> None:
+    if reason not in _warned:
+        _warned.add(reason)
+        logger.warning("batched PPO: the C++ kernel is not used (%s); torch ops instead", reason)
+
+
+def _ppo_update_kernel(
+    policy: StackedPolicy,
+    optimizer: torch.optim.Optimizer,
+    data: Rollout,
+    n_epochs: int,
+    batch_size: int,
+    permutations: list[torch.Tensor] | None,
+    generator: torch.Generator | None,
+) -> None:
+    L, N = data.actions.shape
+    params = [t for i in range(3) for t in (policy.net.weights[i], policy.net.biases[i])]
+    group = optimizer.param_groups[0]
+    for p in params:  # torch's Adam state layout, so optimizer.state_dict() stays valid
+        st = optimizer.state[p]
+        if not st:
+            st["step"] = torch.tensor(0.0, dtype=torch.float32)
+            st["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+            st["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+    states = [optimizer.state[p] for p in params]
+    steps = {float(st["step"]) for st in states}
+    if len(steps) != 1:
+        raise RuntimeError(f"Adam step counts differ across the policy's parameters: {steps}")
+    perms = None
+    if permutations is not None:
+        perms = torch.stack([torch.as_tensor(p, dtype=torch.int64) for p in permutations])
+        if perms.shape != (n_epochs, L, N):
+            raise ValueError(
+                f"permutations: expected {n_epochs} of shape ({L}, {N}), got {tuple(perms.shape)}"
+            )
+        perms = perms.contiguous()
+    seed = int(torch.randint(0, 2**62, (1,), generator=generator))
+    tensors = {
+        "obs": data.obs.to(torch.float32).contiguous(),
+        "actions": data.actions.to(torch.int64).contiguous(),
+        "old_logp": data.old_logp.to(torch.float32).contiguous(),
+        "advantages": data.advantages.to(torch.float32).contiguous(),
+        "returns": data.returns.to(torch.float32).contiguous(),
+    }
+    with torch.no_grad():
+        native.ppo_update_kernel(
+            tensors,
+            [p.data for p in params],
+            [st["exp_avg"] for st in states],
+            [st["exp_avg_sq"] for st in states],
+            n_epochs=n_epochs,
+            batch_size=batch_size,
+            perms=perms,
+            seed=seed,
+            lr=float(group["lr"]),
+            betas=tuple(group["betas"]),
+            eps=float(group["eps"]),
+            step0=steps.pop(),
+            clip_range=CLIP_RANGE,
+            vf_coef=VF_COEF,
+            max_grad_norm=MAX_GRAD_NORM,
+        )
+        n_steps = n_epochs * math.ceil(N / batch_size)
+        for st in states:
+            st["step"] += n_steps
 
 
 def _ppo_loss(policy, obs, actions, adv, old_logp, returns) -> torch.Tensor:

@@ -202,9 +202,10 @@ def collect(
     """Collect ``config`` into ``out`` and return the finished dataset."""
     out = Path(out)
     if config.collector == "batched":
-        from .batched_collector import check_device
+        from .batched_collector import check_device, resolve_ppo_backend
 
         check_device(config.device)  # before anything is written
+        config.ppo_backend = resolve_ppo_backend(config)  # stored resolved: part of the identity
     ranks = _Ranks()
     complete = resume and is_complete(
         out

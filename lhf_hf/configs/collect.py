@@ -117,6 +117,10 @@ def parse_tasks(
     return out
 
 
+#: batched collector PPO update backends (see CollectConfig.ppo_backend)
+PPO_BACKENDS = ("auto", "kernel", "torch")
+
+
 @dataclass
 class CollectConfig:
     """How to collect learning histories.  Stored in the dataset's ``meta/info.json``.
@@ -147,6 +151,13 @@ class CollectConfig:
         (the default ``cpu`` is left out of it, so datasets from before this field keep theirs).
         Availability is checked when collecting, not here, so such a dataset's config still loads
         on a machine without a GPU.
+    ppo_backend: batched collector on the CPU: how the stacked PPO updates run.  ``kernel``: the C++
+        kernel (``lhf_hf/collection/kernels``, compiled on first use with the system's g++; ~2x the
+        torch ops' speed); ``torch``: torch ops (any device; the only choice on CUDA); ``auto``
+        (default): ``kernel`` where it builds, else ``torch``, resolved when collecting, and the
+        resolved value is stored.  The two draw minibatch permutations from different streams, so
+        the data differ: part of the data's identity (``torch`` is left out of it, so datasets from
+        before this field keep theirs).
     """
 
     env_id: str
@@ -164,6 +175,7 @@ class CollectConfig:
     sac: SACSettings = field(default_factory=SACSettings)
     tasks_per_chunk: int | None = None
     device: str = "cpu"
+    ppo_backend: str = "auto"
 
     def __post_init__(self) -> None:
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
@@ -213,6 +225,14 @@ class CollectConfig:
             raise ValueError(
                 f"CollectConfig.device={self.device!r} needs collector='batched' (SB3 runs on the CPU)"
             )
+        if self.ppo_backend not in PPO_BACKENDS:
+            raise ValueError(
+                f"CollectConfig.ppo_backend must be one of {PPO_BACKENDS}, got {self.ppo_backend!r}"
+            )
+        if self.ppo_backend == "kernel" and self.device != "cpu":
+            raise ValueError(
+                f"CollectConfig.ppo_backend='kernel' runs on the CPU; device={self.device!r} needs 'torch'"
+            )
         if self.collector == "batched":
             if spec.family != "gridworld" or self.algo != "ppo":
                 raise ValueError(
@@ -257,4 +277,6 @@ class CollectConfig:
             d.pop("tasks_per_chunk")  # SB3 tasks do not depend on chunks
         if self.device == "cpu":
             d.pop("device")  # the default, absent from the identities of older datasets
+        if self.collector == "sb3" or self.ppo_backend == "torch":
+            d.pop("ppo_backend")  # SB3 has its own; "torch" is what datasets before the field used
         return d

@@ -25,10 +25,11 @@ def test_same_seed_same_data_and_chunks_matter(tmp_path):
 def test_resume_redoes_whole_chunks_identically(tmp_path):
     full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
     out = tmp_path / "partial"
-    from lhf_hf.collection.batched_collector import collect_chunk
+    from lhf_hf.collection.batched_collector import collect_chunk, resolve_ppo_backend
     from lhf_hf.histories.writer import prepare_output, write_task
 
     cfg = CollectConfig(**CFG)
+    cfg.ppo_backend = resolve_ppo_backend(cfg)  # as collect() does before writing
     prepare_output(out, cfg.identity())
     # chunk 0 (positions 0, 1) fully committed, chunk 1 (position 2) missing: as after a kill
     for p, th in zip([0, 1], collect_chunk(cfg, [5, 6], 0), strict=True):

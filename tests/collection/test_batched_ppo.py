@@ -112,7 +112,7 @@ def test_forward_and_init_match_sb3_architecture():
     )
 
 
-@pytest.mark.parametrize("gradients", ["manual", "autograd"])
+@pytest.mark.parametrize("gradients", ["kernel", "manual", "autograd"])
 @pytest.mark.parametrize("n_epochs, batch_size", [(2, 50), (3, 64)])
 @pytest.mark.filterwarnings("ignore:You have specified a mini-batch size")
 def test_one_update_equals_sb3_train(n_epochs, batch_size, gradients):

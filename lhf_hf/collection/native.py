@@ -1,0 +1,190 @@
+"""Build, load and call the C++ PPO-update kernel (``kernels/ppo_update.cpp``).
+
+The kernel is compiled on first use with the system's C++ compiler (``$CXX`` or ``g++``; ``-O3
+-march=native``, so it must be built on the machine that runs it) into a per-user cache
+(``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags and the
+compiler's version; the file is written under a temporary name and renamed, so concurrent builds are
+safe.  No compiler, or a failed build, raises :class:`KernelUnavailable` with the reason; the
+``auto`` gradients mode of :func:`lhf_hf.collection.batched_ppo.ppo_update` then falls back to the
+torch implementation.
+
+Threads: learners are independent, so ``[0, L)`` is split into one contiguous range per thread
+(``torch.get_num_threads()`` of them) and each range is one foreign call; ctypes releases the GIL
+for the call's duration.  Results do not depend on the split.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import torch
+
+logger = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
+ABI_VERSION = 1
+FLAGS = (
+    "-O3",
+    "-march=native",
+    "-std=gnu++17",
+    "-fPIC",
+    "-shared",
+    "-fno-math-errno",
+    "-mprefer-vector-width=512",
+)
+
+
+class KernelUnavailable(RuntimeError):
+    """The C++ kernel cannot be built or loaded here (the message says why)."""
+
+
+class PPOArgs(ctypes.Structure):
+    """Mirror of ``struct PPOArgs`` in ppo_update.cpp (same field order)."""
+
+    _fields_ = [
+        *((name, ctypes.c_int64) for name in ("L", "N", "d", "A", "batch", "n_epochs")),
+        ("params", ctypes.c_void_p * 6),
+        ("exp_avg", ctypes.c_void_p * 6),
+        ("exp_avg_sq", ctypes.c_void_p * 6),
+        *((name, ctypes.c_void_p) for name in ("obs", "actions", "old_logp", "advantages")),
+        ("returns", ctypes.c_void_p),
+        ("perms", ctypes.c_void_p),
+        ("seed", ctypes.c_uint64),
+        *((name, ctypes.c_double) for name in ("lr", "beta1", "beta2", "eps", "step0")),
+        *((name, ctypes.c_double) for name in ("clip_range", "vf_coef", "max_grad_norm")),
+    ]
+
+
+def cache_dir() -> Path:
+    return Path(
+        os.environ.get("LHF_HF_KERNEL_CACHE", Path.home() / ".cache" / "lhf_hf" / "kernels")
+    )
+
+
+def _compiler() -> str:
+    cxx = os.environ.get("CXX", "g++")
+    if shutil.which(cxx) is None:
+        raise KernelUnavailable(
+            f"no C++ compiler {cxx!r} on PATH (set $CXX); the torch implementation is used instead"
+        )
+    return cxx
+
+
+@functools.cache
+def build(hidden: int = 64) -> Path:
+    """Compile the kernel for a hidden width (a multiple of 16) unless cached; returns the .so path."""
+    if hidden % 16 != 0 or hidden <= 0:
+        raise KernelUnavailable(
+            f"the kernel needs a hidden width that is a multiple of 16, got {hidden}"
+        )
+    cxx = _compiler()
+    version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
+    flags = (*FLAGS, f"-DHID={hidden}")
+    key = hashlib.sha256(
+        "\0".join([SOURCE.read_text(), " ".join(flags), version, os.uname().machine]).encode()
+    ).hexdigest()[:16]
+    out = cache_dir() / f"ppo_update-h{hidden}-{key}.so"
+    if out.exists():
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".so.tmp")
+    os.close(fd)
+    try:
+        proc = subprocess.run([cxx, *flags, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise KernelUnavailable(f"building {SOURCE.name} failed:\n{proc.stderr[-2000:]}")
+        os.replace(tmp, out)  # atomic: a concurrent build of the same key writes the same bytes
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return out
+
+
+@functools.cache
+def load(hidden: int = 64) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(build(hidden)))
+    if lib.lhf_abi_version() != ABI_VERSION or lib.lhf_hidden() != hidden:
+        raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI or hidden width)")
+    lib.lhf_ppo_update.argtypes = [ctypes.POINTER(PPOArgs), ctypes.c_int64, ctypes.c_int64]
+    lib.lhf_ppo_update.restype = ctypes.c_int
+    return lib
+
+
+@functools.cache
+def _pool(threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(threads, thread_name_prefix="lhf-ppo")
+
+
+ERRORS = {
+    1: "bad sizes",
+    2: "out of memory",
+    3: "a permutation index is out of range",
+    4: "an action is out of range",
+}
+
+
+def ppo_update_kernel(
+    tensors: dict[str, torch.Tensor],
+    params: list[torch.Tensor],
+    exp_avg: list[torch.Tensor],
+    exp_avg_sq: list[torch.Tensor],
+    *,
+    n_epochs: int,
+    batch_size: int,
+    perms: torch.Tensor | None,
+    seed: int,
+    lr: float,
+    betas: tuple[float, float],
+    eps: float,
+    step0: float,
+    clip_range: float,
+    vf_coef: float,
+    max_grad_norm: float,
+    threads: int | None = None,
+) -> None:
+    """One PPO update of every learner in place (params and Adam moments).
+
+    ``tensors``: contiguous CPU ``obs`` (L, N, d) float32, ``actions`` (L, N) int64, ``old_logp``,
+    ``advantages``, ``returns`` (L, N) float32.  ``params`` / moments: W1, B1, W2, B2, W3, B3 of the
+    stacked 2L nets.  ``perms``: (n_epochs, L, N) int64, or None to draw them from ``seed``.
+    """
+    hidden = params[0].shape[-1]
+    lib = load(hidden)
+    obs = tensors["obs"]
+    L, N, d = obs.shape
+    A = params[4].shape[-1]
+    args = PPOArgs()
+    args.L, args.N, args.d, args.A, args.batch, args.n_epochs = L, N, d, A, batch_size, n_epochs
+    for i in range(6):
+        args.params[i] = params[i].data_ptr()
+        args.exp_avg[i] = exp_avg[i].data_ptr()
+        args.exp_avg_sq[i] = exp_avg_sq[i].data_ptr()
+    for name in ("obs", "actions", "old_logp", "advantages", "returns"):
+        setattr(args, name, tensors[name].data_ptr())
+    args.perms = perms.data_ptr() if perms is not None else None
+    args.seed = seed
+    args.lr, (args.beta1, args.beta2), args.eps, args.step0 = lr, betas, eps, step0
+    args.clip_range, args.vf_coef, args.max_grad_norm = clip_range, vf_coef, max_grad_norm
+    threads = max(1, min(threads or torch.get_num_threads(), L))
+    bounds = [L * i // threads for i in range(threads + 1)]
+    ref = ctypes.byref(args)
+    if threads == 1:
+        codes = [lib.lhf_ppo_update(ref, 0, L)]
+    else:
+        codes = list(
+            _pool(threads).map(
+                lambda i: lib.lhf_ppo_update(ref, bounds[i], bounds[i + 1]), range(threads)
+            )
+        )
+    for code in codes:
+        if code != 0:
+            raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")
