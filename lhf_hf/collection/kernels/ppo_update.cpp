@@ -499,3 +499,15 @@ extern "C" int lhf_ppo_update(const PPOArgs* a, int64_t l0, int64_t l1) {
   std::free(act);
   return 0;
 }
+
+// The kernel's tanh on n floats (tests check its accuracy against torch.tanh in float64).
+extern "C" void lhf_tanh(const float* x, float* y, int64_t n) {
+  int64_t j = 0;
+  for (; j + VW <= n; j += VW) vstore(y + j, vtanh(vload(x + j)));
+  if (j < n) {
+    float tail[VW] = {};
+    std::memcpy(tail, x + j, (n - j) * sizeof(float));
+    const vf t = vtanh(vload(tail));
+    for (int64_t k = 0; k < n - j; ++k) y[j + k] = t[k];
+  }
+}
