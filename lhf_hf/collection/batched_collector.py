@@ -83,6 +83,20 @@ def collect_chunk(
         gen = torch.Generator(device).manual_seed(seed)
     opt = make_optimizer(policy, p.learning_rate)
     gradients = {"kernel": "kernel", "torch": "manual", "auto": "auto"}[config.ppo_backend]
+    if config.ppo_backend == "kernel":  # acting too: actor + critic per learner in cache
+
+        def act(o: torch.Tensor):
+            u = torch.rand(o.shape[:2], generator=gen)  # (L, E): inverse-CDF sampling
+            return native.ppo_act(policy.stacked_params(), o, u)
+
+        def value(o: torch.Tensor) -> torch.Tensor:
+            return native.ppo_act(policy.stacked_params(), o, None)[2]
+    else:
+
+        def act(o: torch.Tensor):
+            return policy.act(o, gen)
+
+        value = policy.value
 
     # Recording: (L, E, steps) — small ints while collecting, int64 in the dataset.
     rec_obs = np.zeros((L, E, steps, obs_dim), dtype=np.int16)
@@ -120,7 +134,7 @@ def collect_chunk(
             k = t % T
             obs_t = to_device(obs.reshape(L, E, obs_dim), np.float32)  # (L, E, d)
             rec_opt[:, :, t] = core.optimal_action().reshape(L, E)
-            actions, logp, values = policy.act(obs_t, gen)  # (L, E) each
+            actions, logp, values = act(obs_t)  # (L, E) each
             actions_np = actions.cpu().numpy()  # (L, E)
             next_obs, reward, done = core.step(actions_np.reshape(-1))
             rec_obs[:, :, t] = obs.reshape(L, E, obs_dim)
@@ -132,7 +146,7 @@ def collect_chunk(
             done_t = to_device(done.reshape(L, E))
             if done.any():
                 # SB3: on a time-limit truncation, add gamma * V(true final state) to the reward.
-                final_v = policy.value(to_device(next_obs.reshape(L, E, obs_dim), np.float32))
+                final_v = value(to_device(next_obs.reshape(L, E, obs_dim), np.float32))
                 r = r + p.gamma * final_v * done_t
                 obs = core.reset(done)
             else:
@@ -141,7 +155,7 @@ def collect_chunk(
             buf_val[:, :, k], buf_rew[:, :, k], buf_start[:, :, k] = values, r, episode_start
             episode_start = done_t
             if k == T - 1 and t < steps - 1:  # the last rollout's update cannot change the data
-                last_v = policy.value(to_device(obs.reshape(L, E, obs_dim), np.float32))
+                last_v = value(to_device(obs.reshape(L, E, obs_dim), np.float32))
                 adv, ret = gae(buf_rew, buf_val, buf_start, last_v, done_t, p.gamma)
                 flat = lambda x: x.reshape(L, E * T, *x.shape[3:])  # noqa: E731 - (L, E, T, ...) -> (L, E*T, ...) env-major like SB3
                 with torch.enable_grad():

@@ -103,6 +103,10 @@ class StackedPolicy(nn.Module):
                 self.net.biases[i].zero_()
         self.num_learners = L
 
+    def stacked_params(self) -> list[torch.Tensor]:
+        """[W1, B1, W2, B2, W3, B3] of the 2L nets: the C++ kernel's parameter order."""
+        return [t for i in range(3) for t in (self.net.weights[i], self.net.biases[i])]
+
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """obs (L, B, obs_dim) float -> (logits (L, B, A), values (L, B))."""
         L = self.num_learners
@@ -293,7 +297,7 @@ def _ppo_update_kernel(
     generator: torch.Generator | None,
 ) -> None:
     L, N = data.actions.shape
-    params = [t for i in range(3) for t in (policy.net.weights[i], policy.net.biases[i])]
+    params = policy.stacked_params()
     group = optimizer.param_groups[0]
     for p in params:  # torch's Adam state layout, so optimizer.state_dict() stays valid
         st = optimizer.state[p]

@@ -64,6 +64,16 @@ class PPOArgs(ctypes.Structure):
     ]
 
 
+class ActArgs(ctypes.Structure):
+    """Mirror of ``struct ActArgs`` in ppo_update.cpp."""
+
+    _fields_ = [
+        *((name, ctypes.c_int64) for name in ("L", "E", "d", "A")),
+        ("params", ctypes.c_void_p * 6),
+        *((name, ctypes.c_void_p) for name in ("obs", "uniforms", "actions", "logp", "values")),
+    ]
+
+
 def cache_dir() -> Path:
     return Path(
         os.environ.get("LHF_HF_KERNEL_CACHE", Path.home() / ".cache" / "lhf_hf" / "kernels")
@@ -116,12 +126,66 @@ def load(hidden: int = 64) -> ctypes.CDLL:
         raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI or hidden width)")
     lib.lhf_ppo_update.argtypes = [ctypes.POINTER(PPOArgs), ctypes.c_int64, ctypes.c_int64]
     lib.lhf_ppo_update.restype = ctypes.c_int
+    lib.lhf_ppo_act.argtypes = [ctypes.POINTER(ActArgs), ctypes.c_int64, ctypes.c_int64]
+    lib.lhf_ppo_act.restype = ctypes.c_int
     return lib
 
 
 @functools.cache
 def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(threads, thread_name_prefix="lhf-ppo")
+
+
+def _run(fn, ref, L: int, threads: int | None) -> None:
+    """fn(ref, l0, l1) over [0, L) split into one contiguous range per thread; raise on a failure."""
+    threads = max(1, min(threads or torch.get_num_threads(), L))
+    bounds = [L * i // threads for i in range(threads + 1)]
+    if threads == 1:
+        codes = [fn(ref, 0, L)]
+    else:
+        codes = list(
+            _pool(threads).map(lambda i: fn(ref, bounds[i], bounds[i + 1]), range(threads))
+        )
+    for code in codes:
+        if code != 0:
+            raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")
+
+
+def ppo_act(
+    params: list[torch.Tensor],
+    obs: torch.Tensor,
+    uniforms: torch.Tensor | None,
+    threads: int | None = None,
+) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+    """Act with every learner: ``obs`` (L, E, d) -> (actions (L, E) int64, log-probs, values).
+
+    ``params``: W1, B1, W2, B2, W3, B3 of the stacked 2L nets (float32, contiguous).  Action e of
+    learner l is the inverse CDF of its policy at ``uniforms[l, e]`` (in [0, 1)); ``uniforms=None``
+    computes the values only (actions and log-probs are then None).
+    """
+    lib = load(params[0].shape[-1])
+    obs = obs.to(torch.float32).contiguous()
+    L, E, d = obs.shape
+    A = params[4].shape[-1]
+    values = torch.empty(L, E)
+    args = ActArgs()
+    args.L, args.E, args.d, args.A = L, E, d, A
+    for i in range(6):
+        args.params[i] = params[i].data_ptr()
+    args.obs, args.values = obs.data_ptr(), values.data_ptr()
+    actions = logp = None
+    if uniforms is not None:
+        uniforms = uniforms.to(torch.float32).contiguous()
+        if uniforms.shape != (L, E):
+            raise ValueError(f"uniforms: expected shape ({L}, {E}), got {tuple(uniforms.shape)}")
+        actions, logp = torch.empty(L, E, dtype=torch.int64), torch.empty(L, E)
+        args.uniforms, args.actions, args.logp = (
+            uniforms.data_ptr(),
+            actions.data_ptr(),
+            logp.data_ptr(),
+        )
+    _run(lib.lhf_ppo_act, ctypes.byref(args), L, threads)
+    return actions, logp, values
 
 
 ERRORS = {
@@ -174,17 +238,4 @@ def ppo_update_kernel(
     args.seed = seed
     args.lr, (args.beta1, args.beta2), args.eps, args.step0 = lr, betas, eps, step0
     args.clip_range, args.vf_coef, args.max_grad_norm = clip_range, vf_coef, max_grad_norm
-    threads = max(1, min(threads or torch.get_num_threads(), L))
-    bounds = [L * i // threads for i in range(threads + 1)]
-    ref = ctypes.byref(args)
-    if threads == 1:
-        codes = [lib.lhf_ppo_update(ref, 0, L)]
-    else:
-        codes = list(
-            _pool(threads).map(
-                lambda i: lib.lhf_ppo_update(ref, bounds[i], bounds[i + 1]), range(threads)
-            )
-        )
-    for code in codes:
-        if code != 0:
-            raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")
+    _run(lib.lhf_ppo_update, ctypes.byref(args), L, threads)

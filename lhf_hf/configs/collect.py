@@ -151,9 +151,10 @@ class CollectConfig:
         (the default ``cpu`` is left out of it, so datasets from before this field keep theirs).
         Availability is checked when collecting, not here, so such a dataset's config still loads
         on a machine without a GPU.
-    ppo_backend: batched collector on the CPU: how the stacked PPO updates run.  ``kernel``: the C++
-        kernel (``lhf_hf/collection/kernels``, compiled on first use with the system's g++; ~2x the
-        torch ops' speed); ``torch``: torch ops (any device; the only choice on CUDA); ``auto``
+    ppo_backend: batched collector on the CPU: how the stacked PPO learners act and learn.
+        ``kernel``: the C++ kernel (``lhf_hf/collection/kernels``, compiled on first use with the
+        system's g++; 2-3x the torch ops' speed), actions drawn by inverse CDF from uniforms of the
+        chunk's generator; ``torch``: torch ops (any device; the only choice on CUDA); ``auto``
         (default): ``kernel`` where it builds, else ``torch``, resolved when collecting, and the
         resolved value is stored.  The two draw minibatch permutations from different streams, so
         the data differ: part of the data's identity (``torch`` is left out of it, so datasets from

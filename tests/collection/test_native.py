@@ -94,7 +94,7 @@ def test_kernel_equals_torch_update_over_many_steps():
         torch.testing.assert_close(sb["exp_avg"], sa["exp_avg"], rtol=1e-4, atol=1e-6)
         torch.testing.assert_close(sb["exp_avg_sq"], sa["exp_avg_sq"], rtol=1e-3, atol=1e-10)
     # the padded critic head columns stay exactly zero
-    assert float(p_k.net.weights[2][3:, :, 1:].abs().max()) == 0.0
+    assert float(p_k.net.weights[2].detach()[3:, :, 1:].abs().max()) == 0.0
 
 
 def test_kernel_permutations_are_seeded_and_independent_of_threads():
@@ -208,3 +208,32 @@ def test_kernel_rollout_shapes_are_checked_by_torch_layout():
     for a, b in zip(*out, strict=True):
         assert torch.equal(a, b)
     assert np.isfinite(out[0][0].numpy()).all()
+
+
+def test_kernel_act_equals_torch_policy():
+    """Values and log-probs equal the torch forward's; actions are the inverse CDF of the policy at
+    the given uniforms (rows whose uniform lies within float rounding of a CDF step excepted)."""
+    L, E = 3, 150  # E > 64: several row blocks and a partial one
+    policy = StackedPolicy(L, 3, 5, torch.Generator().manual_seed(2))
+    with torch.no_grad():  # sharper policies than at initialisation
+        policy.net.weights[2].mul_(300.0)
+    obs = torch.randint(0, 9, (L, E, 3)).float()
+    u = torch.rand(L, E, generator=torch.Generator().manual_seed(3))
+    actions, logp, values = native.ppo_act(policy.stacked_params(), obs, u)
+    with torch.no_grad():
+        logits, ref_values = policy(obs)
+        logp_all = torch.log_softmax(logits.double(), -1)
+    # float32 sums in another order; the sharpened head makes logits of ~10
+    torch.testing.assert_close(values, ref_values, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(
+        logp.double(), logp_all.gather(-1, actions[..., None])[..., 0], rtol=1e-4, atol=1e-4
+    )
+    cdf = logp_all.exp().cumsum(-1)  # (L, E, A)
+    expected = (u.double()[..., None] >= cdf).sum(-1).clamp_max(4)
+    near_step = ((u.double()[..., None] - cdf).abs() < 1e-4).any(-1)
+    assert bool(((actions == expected) | near_step).all())
+    assert len(set(actions.flatten().tolist())) > 1
+    none_a, none_lp, only_values = native.ppo_act(policy.stacked_params(), obs, None)
+    assert none_a is None and none_lp is None and torch.equal(only_values, values)
+    with pytest.raises(ValueError, match="uniforms: expected shape"):
+        native.ppo_act(policy.stacked_params(), obs, u[:, :10])

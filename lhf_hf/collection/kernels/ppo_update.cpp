@@ -511,3 +511,67 @@ extern "C" void lhf_tanh(const float* x, float* y, int64_t n) {
     for (int64_t k = 0; k < n - j; ++k) y[j + k] = t[k];
   }
 }
+
+// Acting: every learner's actor and critic on its E observations, in blocks of ACT_ROWS rows that
+// stay in L1, and one action per row drawn by inverse CDF from the caller's uniforms (the torch
+// path's multinomial draws from another stream; same law).  uniforms == null: values only.
+extern "C" {
+
+struct ActArgs {  // mirrored by ctypes in native.py
+  int64_t L, E, d, A;
+  float* params[6];  // as PPOArgs.params
+  const float* obs;  // (L, E, d)
+  const float* uniforms;  // (L, E) in [0, 1), or null
+  int64_t* actions;  // (L, E) out (unused when uniforms is null)
+  float* logp;  // (L, E) out (idem)
+  float* values;  // (L, E) out
+};
+
+int lhf_ppo_act(const ActArgs* a, int64_t l0, int64_t l1) {
+  constexpr int ACT_ROWS = 64;
+  const int64_t L = a->L, E = a->E, d = a->d, A = a->A;
+  if (l0 < 0 || l1 > L || l0 > l1 || d < 1 || A < 1 || E < 1) return 1;
+  const int64_t sizes[6] = {d * H, H, H * H, H, H * A, A};
+  const int64_t floats = 2 * ACT_ROWS * H + ACT_ROWS * A + A * H;
+  float* buf = static_cast<float*>(std::aligned_alloc(64, ((floats * 4 + 63) / 64) * 64));
+  if (!buf) return 2;
+  Work w{static_cast<int>(d), static_cast<int>(A), buf, buf + ACT_ROWS * H, nullptr, nullptr,
+         buf + 2 * ACT_ROWS * H, nullptr, nullptr, buf + 2 * ACT_ROWS * H + ACT_ROWS * A};
+  for (int64_t l = l0; l < l1; ++l) {
+    Net nets[2];
+    for (int n = 0; n < 2; ++n)
+      for (int t = 0; t < 6; ++t) nets[n].p[t] = a->params[t] + (n == 0 ? l : L + l) * sizes[t];
+    for (int64_t r0 = 0; r0 < E; r0 += ACT_ROWS) {
+      const int m = static_cast<int>(r0 + ACT_ROWS <= E ? ACT_ROWS : E - r0);
+      const float* x = a->obs + (l * E + r0) * d;
+      const int64_t o = l * E + r0;
+      forward(nets[1], w, m, x, 1);
+      for (int i = 0; i < m; ++i) a->values[o + i] = w.out[i * A];
+      if (!a->uniforms) continue;
+      forward(nets[0], w, m, x, static_cast<int>(A));
+      for (int i = 0; i < m; ++i) {
+        const float* z = w.out + i * A;
+        float mx = z[0];
+        for (int k = 1; k < A; ++k) mx = z[k] > mx ? z[k] : mx;
+        float s = 0.f;
+        for (int k = 0; k < A; ++k) s += std::exp(z[k] - mx);
+        const float target = a->uniforms[o + i] * s;  // inverse CDF on the unnormalised probs
+        int64_t act = -1, last = 0;  // last: the last action with a non-zero probability
+        float c = 0.f;
+        for (int k = 0; k < A; ++k) {
+          const float pk = std::exp(z[k] - mx);
+          c += pk;
+          if (pk > 0.f) last = k;
+          if (act < 0 && target < c) act = k;
+        }
+        if (act < 0) act = last;  // u * s rounded up to s
+        a->actions[o + i] = act;
+        a->logp[o + i] = (z[act] - mx) - std::log(s);
+      }
+    }
+  }
+  std::free(buf);
+  return 0;
+}
+
+}  // extern "C"
