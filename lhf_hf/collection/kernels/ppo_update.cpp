@@ -312,6 +312,17 @@ void backward(const Net& net, const Work& w, int m, const float* x, int A_used) 
   for (int v = 0; v < NV; ++v) vstore(net.g[1] + v * VW, sb[v]);
 }
 
+// e[k] = exp(z[k] - max z) for one row of A logits; *sum = sum_k e[k]; returns max z.  Shared by
+// the update's log-softmax gradient and acting's inverse-CDF sampling (each exp computed once).
+inline float shifted_exp(const float* z, int64_t A, float* e, float* sum) {
+  float mx = z[0];
+  for (int64_t k = 1; k < A; ++k) mx = z[k] > mx ? z[k] : mx;
+  float s = 0.f;
+  for (int64_t k = 0; k < A; ++k) s += (e[k] = std::exp(z[k] - mx));
+  *sum = s;
+  return mx;
+}
+
 // sum of x^2 with four independent vector accumulators (a serial sum is latency-bound: it once
 // took a quarter of the whole update)
 double sum_squares(const float* x, int64_t n) {
@@ -452,10 +463,9 @@ extern "C" int lhf_ppo_update(const PPOArgs* a, int64_t l0, int64_t l1) {
         forward(nets[0], w, m, x, static_cast<int>(A));
         for (int i = 0; i < m; ++i) {
           const float* z = w.out + i * A;
-          float mx = z[0];
-          for (int k = 1; k < A; ++k) mx = z[k] > mx ? z[k] : mx;
-          float s = 0.f;
-          for (int k = 0; k < A; ++k) s += std::exp(z[k] - mx);
+          float* dz = w.dout + i * A;
+          float s;
+          const float mx = shifted_exp(z, A, dz, &s);  // dz holds exp(z - max) until overwritten
           const int64_t ai = act[i];
           if (ai < 0 || ai >= A) {
             std::free(buf);
@@ -469,8 +479,7 @@ extern "C" int lhf_ppo_update(const PPOArgs* a, int64_t l0, int64_t l1) {
           const bool active = ratio == clipped || adv[i] * ratio < adv[i] * clipped;
           const float g = active ? -(adv[i] * ratio) / static_cast<float>(m) : 0.f;
           ratio_g[i] = g;
-          float* dz = w.dout + i * A;
-          for (int k = 0; k < A; ++k) dz[k] = -g * (std::exp(z[k] - mx) / s);
+          for (int k = 0; k < A; ++k) dz[k] = -g * (dz[k] / s);
           dz[ai] += g;
         }
         backward(nets[0], w, m, x, static_cast<int>(A));
@@ -532,11 +541,12 @@ int lhf_ppo_act(const ActArgs* a, int64_t l0, int64_t l1) {
   const int64_t L = a->L, E = a->E, d = a->d, A = a->A;
   if (l0 < 0 || l1 > L || l0 > l1 || d < 1 || A < 1 || E < 1) return 1;
   const int64_t sizes[6] = {d * H, H, H * H, H, H * A, A};
-  const int64_t floats = 2 * ACT_ROWS * H + ACT_ROWS * A + A * H;
+  const int64_t floats = 2 * ACT_ROWS * H + ACT_ROWS * A + A * H + A;
   float* buf = static_cast<float*>(std::aligned_alloc(64, ((floats * 4 + 63) / 64) * 64));
   if (!buf) return 2;
   Work w{static_cast<int>(d), static_cast<int>(A), buf, buf + ACT_ROWS * H, nullptr, nullptr,
          buf + 2 * ACT_ROWS * H, nullptr, nullptr, buf + 2 * ACT_ROWS * H + ACT_ROWS * A};
+  float* e = buf + 2 * ACT_ROWS * H + ACT_ROWS * A + A * H;  // one row's exp(z - max z)
   for (int64_t l = l0; l < l1; ++l) {
     Net nets[2];
     for (int n = 0; n < 2; ++n)
@@ -551,15 +561,13 @@ int lhf_ppo_act(const ActArgs* a, int64_t l0, int64_t l1) {
       forward(nets[0], w, m, x, static_cast<int>(A));
       for (int i = 0; i < m; ++i) {
         const float* z = w.out + i * A;
-        float mx = z[0];
-        for (int k = 1; k < A; ++k) mx = z[k] > mx ? z[k] : mx;
-        float s = 0.f;
-        for (int k = 0; k < A; ++k) s += std::exp(z[k] - mx);
+        float s;
+        const float mx = shifted_exp(z, A, e, &s);
         const float target = a->uniforms[o + i] * s;  // inverse CDF on the unnormalised probs
         int64_t act = -1, last = 0;  // last: the last action with a non-zero probability
         float c = 0.f;
         for (int k = 0; k < A; ++k) {
-          const float pk = std::exp(z[k] - mx);
+          const float pk = e[k];
           c += pk;
           if (pk > 0.f) last = k;
           if (act < 0 && target < c) act = k;
