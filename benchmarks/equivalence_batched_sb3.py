@@ -13,7 +13,9 @@ import argparse
 import json
 from pathlib import Path
 
+from lhf_hf.collection.batched_collector import resolve_ppo_backend
 from lhf_hf.collection.equivalence import compare
+from lhf_hf.configs.collect import CollectConfig
 
 
 def main() -> None:
@@ -24,10 +26,20 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--sb3-seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     p.add_argument("--batched-seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--ppo-backend", default="auto", choices=["auto", "kernel", "torch"])
     p.add_argument("--out", default="results/equivalence")
     args = p.parse_args()
     tasks = [int(t) for t in args.tasks.split(",")]
-    cmp = compare(args.env, tasks, args.histories, args.steps, args.sb3_seeds, args.batched_seeds)
+    backend = resolve_ppo_backend(CollectConfig(args.env, ppo_backend=args.ppo_backend))
+    cmp = compare(
+        args.env,
+        tasks,
+        args.histories,
+        args.steps,
+        args.sb3_seeds,
+        args.batched_seeds,
+        ppo_backend=backend,
+    )
     print(cmp.report())
     print(f"inside the band at every block: {bool(cmp.inside.all())}")
     out = Path(args.out)
@@ -42,6 +54,7 @@ def main() -> None:
                 "steps": args.steps,
                 "sb3_seeds": args.sb3_seeds,
                 "batched_seeds": args.batched_seeds,
+                "ppo_backend": backend,
                 "sb3_curves": cmp.sb3.tolist(),
                 "batched_curves": cmp.batched.tolist(),
                 "inside_every_block": bool(cmp.inside.all()),

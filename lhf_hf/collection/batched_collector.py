@@ -82,8 +82,9 @@ def collect_chunk(
     if device.type != "cpu":  # sampling and permutations on a GPU draw from its own generator
         gen = torch.Generator(device).manual_seed(seed)
     opt = make_optimizer(policy, p.learning_rate)
-    gradients = {"kernel": "kernel", "torch": "manual", "auto": "auto"}[config.ppo_backend]
-    if config.ppo_backend == "kernel":  # acting too: actor + critic per learner in cache
+    backend = resolve_ppo_backend(config)  # `auto` decided here too: callers may pass it unresolved
+    gradients = {"kernel": "kernel", "torch": "manual"}[backend]
+    if backend == "kernel":  # acting too: actor + critic per learner in cache
 
         def act(o: torch.Tensor):
             u = torch.rand(o.shape[:2], generator=gen)  # (L, E): inverse-CDF sampling

@@ -132,6 +132,7 @@ def compare(
     batched_seeds: list[int],
     block: int = 5,
     level: float = 0.99,
+    ppo_backend: str = "auto",
 ) -> Comparison:
     """Collect with both collectors (paper protocol) and compare their mean learning curves."""
 
@@ -144,6 +145,7 @@ def compare(
             seed=seed,
             collector=collector,
             workers=1,
+            ppo_backend=ppo_backend,
         )
 
     sb3 = []
