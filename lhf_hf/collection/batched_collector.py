@@ -109,13 +109,16 @@ def collect_chunk(
     rec_rew = np.zeros((steps, L, E), dtype=np.float32)
     rec_done = np.zeros((steps, L, E), dtype=bool)
 
+    # PPO's rollout buffer, time-major too (T, L, E, ...): contiguous per-step writes, and GAE's
+    # backward pass reads contiguous time slices; viewed as (L, E, T, ...) for GAE and the update
     T = p.n_steps
     kw = {"device": device}
-    buf_obs = torch.zeros(L, E, T, obs_dim, **kw)
-    buf_act = torch.zeros(L, E, T, dtype=torch.int64, **kw)
-    buf_logp, buf_val = torch.zeros(L, E, T, **kw), torch.zeros(L, E, T, **kw)
-    buf_rew = torch.zeros(L, E, T, **kw)
-    buf_start = torch.zeros(L, E, T, dtype=torch.bool, **kw)
+    buf_obs = torch.zeros(T, L, E, obs_dim, **kw)
+    buf_act = torch.zeros(T, L, E, dtype=torch.int64, **kw)
+    buf_logp, buf_val = torch.zeros(T, L, E, **kw), torch.zeros(T, L, E, **kw)
+    buf_rew = torch.zeros(T, L, E, **kw)
+    buf_start = torch.zeros(T, L, E, dtype=torch.bool, **kw)
+    lem = lambda x: x.movedim(0, 2)  # noqa: E731 - (T, L, E, ...) -> (L, E, T, ...) view
 
     def to_device(x: np.ndarray, dtype=None) -> torch.Tensor:
         t = torch.from_numpy(x if dtype is None else x.astype(dtype))
@@ -154,22 +157,22 @@ def collect_chunk(
                 obs = core.reset(done)
             else:
                 obs = next_obs
-            buf_obs[:, :, k], buf_act[:, :, k], buf_logp[:, :, k] = obs_t, actions, logp
-            buf_val[:, :, k], buf_rew[:, :, k], buf_start[:, :, k] = values, r, episode_start
+            buf_obs[k], buf_act[k], buf_logp[k] = obs_t, actions, logp
+            buf_val[k], buf_rew[k], buf_start[k] = values, r, episode_start
             episode_start = done_t
             if k == T - 1 and t < steps - 1:  # the last rollout's update cannot change the data
                 last_v = value(to_device(obs.reshape(L, E, obs_dim), np.float32))
-                adv, ret = gae(buf_rew, buf_val, buf_start, last_v, done_t, p.gamma)
-                flat = lambda x: x.reshape(L, E * T, *x.shape[3:])  # noqa: E731 - (L, E, T, ...) -> (L, E*T, ...) env-major like SB3
+                adv, ret = gae(lem(buf_rew), lem(buf_val), lem(buf_start), last_v, done_t, p.gamma)
+                flat = lambda x: x.reshape(L, E * T, *x.shape[3:])  # noqa: E731 - (L, E, T, ...) -> (L, E*T, ...) env-major like SB3 (copies the time-major views)
                 with torch.enable_grad():
                     ppo_update(
                         policy,
                         opt,
                         Rollout(
-                            flat(buf_obs),
-                            flat(buf_act),
-                            flat(buf_logp),
-                            flat(buf_val),
+                            flat(lem(buf_obs)),
+                            flat(lem(buf_act)),
+                            flat(lem(buf_logp)),
+                            flat(lem(buf_val)),
                             flat(adv),
                             flat(ret),
                         ),

@@ -158,26 +158,41 @@ def _run_batched(
         progress,
         f"batched, {torch_threads()} torch threads",
     )
-    # A chunk's tasks are written by ``workers`` threads: each task has its own files, and
-    # parquet encoding and hashing release the GIL.  Measured on a 16-core GPU machine, writing
-    # was two thirds of a Key-to-Door collection with one writer (BENCHMARKS.md).
-    writers = ThreadPoolExecutor(max_workers=config.workers) if config.workers > 1 else None
+    # A chunk's tasks are written by ``workers`` threads (each task has its own files; parquet
+    # encoding and hashing release the GIL) in the background while the next chunk collects: writing
+    # a Key-to-Door chunk takes ~27 core-seconds, and the rollouts leave a core mostly idle
+    # (BENCHMARKS.md).  At most one chunk waits to be written, so memory stays bounded (~1.3 GB of
+    # int64 histories per 243 Key-to-Door tasks); a writer's error is raised at the next chunk
+    # boundary, and tasks already committed stay committed (--resume redoes the rest).
+    writers = ThreadPoolExecutor(max_workers=config.workers, thread_name_prefix="lhf-write")
+    pending: list = []  # (chunk, futures) of the chunk being written
+
+    def drain() -> None:
+        for c, jobs in pending:
+            for job in jobs:
+                job.result()  # re-raises a writer's error here
+            bar.update(len(chunks[c]))
+        pending.clear()
+
     try:
         for c in todo:
             histories = collect_chunk(config, [tasks[p] for p in chunks[c]], c, progress=progress)
-            jobs = list(zip(chunks[c], histories, strict=True))
-            if writers is None:
-                for p, th in jobs:
-                    write_task(out, p, th, config.horizon)
-            else:
-                done = [writers.submit(write_task, out, p, th, config.horizon) for p, th in jobs]
-                for job in done:
-                    job.result()  # re-raises a writer's error here
-            del histories, jobs
-            bar.update(len(chunks[c]))
+            drain()  # the previous chunk's writes: at most one chunk in memory besides this one
+            pending.append(
+                (
+                    c,
+                    [
+                        writers.submit(write_task, out, p, th, config.horizon)
+                        for p, th in zip(chunks[c], histories, strict=True)
+                    ],
+                )
+            )
+            del histories
+        drain()
     finally:
-        if writers is not None:
-            writers.shutdown()
+        writers.shutdown(
+            cancel_futures=True
+        )  # on an error: queued writes are dropped, not half-done
         bar.close()
 
 

@@ -8,9 +8,9 @@ safe.  No compiler, or a failed build, raises :class:`KernelUnavailable` with th
 ``auto`` gradients mode of :func:`lhf_hf.collection.batched_ppo.ppo_update` then falls back to the
 torch implementation.
 
-Threads: learners are independent, so ``[0, L)`` is split into one contiguous range per thread
-(``torch.get_num_threads()`` of them) and each range is one foreign call; ctypes releases the GIL
-for the call's duration.  Results do not depend on the split.
+Threads: learners are independent, so ``[0, L)`` is split into contiguous pieces (8 per thread) that
+``torch.get_num_threads()`` threads take in turn, one foreign call each; ctypes releases the GIL for
+the call's duration.  Results do not depend on the split.
 """
 
 from __future__ import annotations
@@ -136,16 +136,20 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(threads, thread_name_prefix="lhf-ppo")
 
 
-def _run(fn, ref, L: int, threads: int | None) -> None:
-    """fn(ref, l0, l1) over [0, L) split into one contiguous range per thread; raise on a failure."""
+def _run(fn, ref, L: int, threads: int | None, pieces_per_thread: int = 8) -> None:
+    """fn(ref, l0, l1) over [0, L) in contiguous pieces pulled by ``threads`` threads; raise on a failure.
+
+    Why pieces, not one range per thread: a thread that loses its core for a while (the collector
+    writes the previous chunk in the background, other processes run) would leave the others
+    waiting at the end of a static split; with ~8 pieces per thread the idle ones take its share.
+    """
     threads = max(1, min(threads or torch.get_num_threads(), L))
-    bounds = [L * i // threads for i in range(threads + 1)]
     if threads == 1:
         codes = [fn(ref, 0, L)]
     else:
-        codes = list(
-            _pool(threads).map(lambda i: fn(ref, bounds[i], bounds[i + 1]), range(threads))
-        )
+        n = min(L, threads * pieces_per_thread)
+        bounds = [L * i // n for i in range(n + 1)]
+        codes = list(_pool(threads).map(lambda i: fn(ref, bounds[i], bounds[i + 1]), range(n)))
     for code in codes:
         if code != 0:
             raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")

@@ -38,6 +38,33 @@ def test_resume_redoes_whole_chunks_identically(tmp_path):
     assert resumed.fingerprint == full.fingerprint
 
 
+def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeypatch):
+    """Chunks are written in the background while the next one collects: a failed write is raised
+    (not swallowed), the tasks already committed stay, and --resume completes the same dataset."""
+    import importlib
+
+    from lhf_hf.histories.writer import task_done, write_task
+
+    # the module, not the function of the same name that lhf_hf.collection exports
+    collect_mod = importlib.import_module("lhf_hf.collection.collect")
+
+    full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
+    cfg = CollectConfig(**CFG)
+
+    def failing(out, position, th, horizon):
+        if position == 1:
+            raise OSError("disk full")
+        write_task(out, position, th, horizon)
+
+    monkeypatch.setattr(collect_mod, "write_task", failing)
+    out = tmp_path / "partial"
+    with pytest.raises(OSError, match="disk full"):
+        collect(cfg, out, progress=False)
+    assert task_done(out, 0, cfg.frames_per_task) and not task_done(out, 1, cfg.frames_per_task)
+    monkeypatch.setattr(collect_mod, "write_task", write_task)
+    assert collect(cfg, out, resume=True, progress=False).fingerprint == full.fingerprint
+
+
 def test_independent_protocol_has_one_learner_per_history(tmp_path):
     ds = collect(
         CollectConfig(**{**CFG, "tasks": "5", "protocol": "independent"}),
