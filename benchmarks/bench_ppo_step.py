@@ -59,10 +59,16 @@ def step_ms(gradients: str, L: int, N: int, b: int, epochs: int = 2) -> float:
 
 
 def step_flops(L: int, b: int, d: int = 2, A: int = 5, hidden: int = 64) -> int:
-    """FLOPs of one stacked minibatch step: forward, weight and input gradients of the three layers of
-    2L nets (actor + critic; the critic head is padded to A outputs, as computed)."""
-    macs = 2 * L * b * (d * hidden + hidden * hidden + hidden * A)  # one forward
-    return 2 * macs * 3
+    """FLOPs one stacked minibatch step needs: for each of the L actors (head: A logits) and L critics
+    (head: 1 value), the forward matmuls, every layer's weight gradient, and the input gradients of
+    layers 2 and 3 (layer 1's input gradient is not needed).  Counted as 2 FLOPs per multiply-add;
+    biases, activations, the loss and Adam are left out (they are not matmuls)."""
+
+    def net(out: int) -> int:  # multiply-adds per row
+        fwd = d * hidden + hidden * hidden + hidden * out
+        return 2 * fwd + hidden * hidden + hidden * out  # forward + weight grads + input grads
+
+    return 2 * L * b * (net(A) + net(1))
 
 
 def matmul_floor_ms(L: int, b: int, hidden: int = 64) -> dict:

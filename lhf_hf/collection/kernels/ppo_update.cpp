@@ -40,7 +40,18 @@ typedef int32_t vi __attribute__((vector_size(VW * sizeof(int32_t))));
 
 inline vf vload(const float* p) { vf v; std::memcpy(&v, p, sizeof v); return v; }
 inline void vstore(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
-inline vf vset(float x) { return vf{} + x; }
+// x in every lane.  Not `vf{} + x`: that is a real addition (0 + -0 is +0), compiled to a scalar add
+// and a register broadcast on the port that also runs FMAs (~1/3 of the matmuls' time); a broadcast
+// from memory is a plain load.
+inline vf vset(float x) {
+#if defined(__AVX512F__)
+  return (vf)_mm512_set1_ps(x);
+#else
+  vf v;
+  for (int j = 0; j < VW; ++j) v[j] = x;
+  return v;
+#endif
+}
 inline float hsum(vf v) {  // tree: 4 shuffle + add levels instead of 15 dependent scalar adds
   v += __builtin_shuffle(v, vi{8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7});
   v += __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11});
