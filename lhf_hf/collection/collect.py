@@ -190,9 +190,8 @@ def _run_batched(
             del histories
         drain()
     finally:
-        writers.shutdown(
-            cancel_futures=True
-        )  # on an error: queued writes are dropped, not half-done
+        # on an error: queued writes are dropped (never half-done), running ones finish
+        writers.shutdown(cancel_futures=True)
         bar.close()
 
 

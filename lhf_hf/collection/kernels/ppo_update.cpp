@@ -41,8 +41,8 @@ typedef int32_t vi __attribute__((vector_size(VW * sizeof(int32_t))));
 inline vf vload(const float* p) { vf v; std::memcpy(&v, p, sizeof v); return v; }
 inline void vstore(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
 // x in every lane.  Not `vf{} + x`: that is a real addition (0 + -0 is +0), compiled to a scalar add
-// and a register broadcast on the port that also runs FMAs (~1/3 of the matmuls' time); a broadcast
-// from memory is a plain load.
+// and a register broadcast on a port that also runs FMAs (~10% of an update); a broadcast from
+// memory is a plain load.
 inline vf vset(float x) {
 #if defined(__AVX512F__)
   return (vf)_mm512_set1_ps(x);
@@ -86,7 +86,7 @@ inline vf vrsqrt(vf x) {
 // on [0, 9] by scripts/fit_tanh.py (fit error 7e-9).  Evaluated in
 // float it is within 3.6e-7 (relative) of tanh for every float (tested); the result is clamped to
 // [-1, 1] since rounding can lift it 2 ulps above 1.  ~17 vector ops: the former polynomial + exp
-// form (~38) was ~16% of an update (BENCHMARKS.md, "tanh").
+// form (~38) was ~16% of an update (BENCHMARKS.md, session 8).
 inline vf vtanh(vf x) {
   vf c = x < 9.f ? x : vset(9.f);
   c = c > -9.f ? c : vset(-9.f);
