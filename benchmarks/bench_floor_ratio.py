@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_ppo_step import matmul_floor_ms, step_flops
+from bench_ppo_step import matmul_floor_ms, minibatch_steps_per_learner, step_flops
 
 from lhf_hf.collection import collect
 from lhf_hf.configs import CollectConfig
@@ -39,11 +39,7 @@ def main() -> None:
     K = a.tasks_per_chunk
     cfg0 = CollectConfig("dark-key-to-door", collector="batched")
     ppo = cfg0.ppo
-    steps_per_learner = (
-        (cfg0.steps // ppo.n_steps - 1)
-        * ppo.n_epochs
-        * (cfg0.histories * ppo.n_steps // ppo.batch_size)
-    )
+    steps_per_learner = minibatch_steps_per_learner(cfg0)
     chunk_flops = K * steps_per_learner * step_flops(1, ppo.batch_size)
     cycles = []
     rate = bmm_rate()

@@ -71,6 +71,17 @@ def step_flops(L: int, b: int, d: int = 2, A: int = 5, hidden: int = 64) -> int:
     return 2 * L * b * (net(A) + net(1))
 
 
+def minibatch_steps_per_learner(cfg) -> int:
+    """Sequential PPO minibatch steps of one paper-protocol learner over a whole collection (the last
+    rollout is not followed by an update: it cannot change the data)."""
+    ppo = cfg.ppo
+    return (
+        (cfg.steps // ppo.n_steps - 1)
+        * ppo.n_epochs
+        * (cfg.histories * ppo.n_steps // ppo.batch_size)
+    )
+
+
 def matmul_floor_ms(L: int, b: int, hidden: int = 64) -> dict:
     """A step's FLOPs and the time they take at the rate this machine's batched (b x 64) @ (64 x 64)
     matmul reaches."""
@@ -120,7 +131,7 @@ def main() -> None:
     # the full paper dataset: every task's learner does (steps / n_steps - 1) updates (the last
     # rollout's update is skipped) of n_epochs x N / b minibatch steps
     tasks = spec.num_tasks
-    steps_per_learner = (cfg.steps // ppo.n_steps - 1) * ppo.n_epochs * (N // b)
+    steps_per_learner = minibatch_steps_per_learner(cfg)
     total_flops = tasks * steps_per_learner * step_flops(1, b)
     fastest = "kernel" if "kernel" in best else "manual"
     per_learner_step_s = best[fastest] / 1e3 / L
