@@ -8,7 +8,7 @@
 # (e.g. ./scripts/demo.sh --runs 2).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-source scripts/_venv.sh "metaworld"
+source scripts/_venv.sh "dev,metaworld,hub-test"
 echo "[lhf] environments"
 lhf envs
 echo

@@ -125,7 +125,7 @@ class Context:
             return hidden
         hidden, self.cache = self.model.run_backbone(
             embeds,
-            past_key_values=self.cache,
+            backbone_cache=self.cache,
             position_ids=new_pos[None].expand(B, n),
             use_cache=True,
             attention_mask=mask,

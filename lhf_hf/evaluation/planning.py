@@ -59,7 +59,7 @@ class _Tree:
         bias = torch.zeros(mask.shape, dtype=embeds.dtype).masked_fill_(~mask, float("-inf"))
         hidden, self.cache = self.model.run_backbone(
             embeds,
-            past_key_values=self.cache,
+            backbone_cache=self.cache,
             position_ids=pos,
             use_cache=True,
             attention_mask=bias[:, None],

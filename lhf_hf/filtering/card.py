@@ -1,4 +1,4 @@
-"""The card (README.md) of an LHF selection folder, from ``dataset_cards/selection_card.md``."""
+"""The card (README.md) of an LHF selection folder, from ``lhf_hf/templates/selection_card.md``."""
 
 from __future__ import annotations
 

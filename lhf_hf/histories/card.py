@@ -1,4 +1,4 @@
-"""The dataset card (README.md) of a learning-history dataset, from ``dataset_cards/``."""
+"""The dataset card (README.md) of a learning-history dataset, from ``lhf_hf/templates/``."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from lhf_hf import constants as C
 from .io import write_text_atomic
 from .plots import learning_curves, plot_learning_curve
 
-TEMPLATES = Path(__file__).resolve().parents[2] / "dataset_cards"
+#: Card templates ship inside the package (package data), so a wheel install renders cards too.
+TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
 
 COLUMN_MEANING = {
     C.OBS: "state the action was taken in",
@@ -34,7 +35,7 @@ def template_path(name: str) -> Path:
     path = TEMPLATES / name
     if not path.exists():
         raise FileNotFoundError(
-            f"card template {path} is missing (install lhf_hf from a source checkout: pip install -e .)"
+            f"card template {path} is missing: the lhf_hf install is incomplete (reinstall it)"
         )
     return path
 

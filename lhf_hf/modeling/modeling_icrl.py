@@ -20,6 +20,7 @@ can extend a cached context with ``Q`` and imagined ``T`` tokens exactly as they
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass
 
@@ -34,6 +35,15 @@ from .configuration_icrl import ICRLConfig
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # Gaussian head: keeps the NLL finite early in training
 
+# The name under which ``LlamaModel.forward`` takes and returns its KV cache: ``past_key_values``
+# up to transformers 5.23, ``cache`` from 5.24 on (the old name is deprecated there, and every
+# ``ModelOutput.__init__`` renames a ``past_key_values`` keyword to ``cache``).  Read off the
+# signature once, so the backbone is called by whichever name the installed version owns; our own
+# inputs and outputs use ``backbone_cache``, a name no transformers release renames.
+_LLAMA_CACHE_ARG = (
+    "cache" if "cache" in inspect.signature(LlamaModel.forward).parameters else "past_key_values"
+)
+
 
 @dataclass
 class ICRLOutput(ModelOutput):
@@ -47,7 +57,7 @@ class ICRLOutput(ModelOutput):
     next_state_logits: (B, T, S, bins) per-coordinate logits of s'_j (DICP, integer states).
     next_state_pred: (B, T, S) predicted s'_j (DICP, real-valued states).
     return_pred: (B, T) predicted return-to-go from (s_j, a_j), in units of ``return_scale`` (DICP).
-    past_key_values: the backbone's cache when ``use_cache``.
+    backbone_cache: the backbone's KV cache (a ``transformers.Cache``) when ``use_cache``.
     """
 
     loss: torch.FloatTensor | None = None
@@ -60,7 +70,7 @@ class ICRLOutput(ModelOutput):
     next_state_logits: torch.FloatTensor | None = None
     next_state_pred: torch.FloatTensor | None = None
     return_pred: torch.FloatTensor | None = None
-    past_key_values: object | None = None
+    backbone_cache: object | None = None
 
 
 class ICRLPreTrainedModel(LlamaPreTrainedModel):
@@ -148,7 +158,7 @@ class ICRLModel(ICRLPreTrainedModel):
     def run_backbone(
         self,
         inputs_embeds,
-        past_key_values=None,
+        backbone_cache=None,
         position_ids=None,
         use_cache=None,
         attention_mask=None,
@@ -158,15 +168,16 @@ class ICRLModel(ICRLPreTrainedModel):
         attention_mask: None (causal) or a custom (B, 1, L, past + L) mask passed to attention as is:
         boolean (True = may attend) or additive float (the planner's tree of imagined paths over a
         shared cached context).
+        backbone_cache: a ``transformers.Cache`` to extend (None: start afresh).
         """
         out = self.backbone(
             inputs_embeds=self.embed_dropout(inputs_embeds),
             attention_mask=attention_mask,
-            past_key_values=past_key_values,
             position_ids=position_ids,
             use_cache=use_cache,
+            **{_LLAMA_CACHE_ARG: backbone_cache},
         )
-        return out.last_hidden_state, out.past_key_values
+        return out.last_hidden_state, getattr(out, _LLAMA_CACHE_ARG)
 
     def action_distribution(self, hidden: torch.Tensor) -> dict[str, torch.Tensor]:
         """Policy head on transition-token outputs (B, T, D)."""
@@ -214,7 +225,7 @@ class ICRLModel(ICRLPreTrainedModel):
         reward_labels: torch.Tensor | None = None,
         next_state_labels: torch.Tensor | None = None,
         return_labels: torch.Tensor | None = None,
-        past_key_values=None,
+        backbone_cache=None,
         position_ids: torch.Tensor | None = None,
         use_cache: bool | None = None,
         **kwargs,
@@ -230,6 +241,8 @@ class ICRLModel(ICRLPreTrainedModel):
             oracle's); label_mask: (B, T) bool, the positions that carry a label (default: all).
         reward_labels (B, T), next_state_labels (B, T, S), return_labels (B, T): DICP targets
             (return-to-go in environment units; scaled by ``config.return_scale`` here).
+        backbone_cache: the ``backbone_cache`` of an earlier call with ``use_cache=True``: this window
+            continues that one (positions follow on unless ``position_ids`` says otherwise).
         """
         c = self.config
         B, T = states.shape[:2]
@@ -242,7 +255,7 @@ class ICRLModel(ICRLPreTrainedModel):
                 raise ValueError("DICP's forward needs `actions` (the query-action tokens' input)")
             qa = self.embed_query_actions(states, actions)  # (B, T, D)
             tokens = torch.stack([tokens, qa], dim=2).flatten(1, 2)  # (B, T, 2, D) -> (B, 2T, D)
-        hidden, cache = self.run_backbone(tokens, past_key_values, position_ids, use_cache)
+        hidden, cache = self.run_backbone(tokens, backbone_cache, position_ids, use_cache)
         if dicp:
             hidden = hidden.unflatten(1, (T, 2))  # (B, 2T, D) -> (B, T, 2, D)
             policy_hidden, query_hidden = hidden[:, :, 0], hidden[:, :, 1]  # (B, T, D) each
@@ -270,7 +283,7 @@ class ICRLModel(ICRLPreTrainedModel):
             loss=loss,
             action_loss=action_loss,
             dynamics_loss=dynamics_loss,
-            past_key_values=cache if use_cache else None,
+            backbone_cache=cache if use_cache else None,
             **out,
         )
 

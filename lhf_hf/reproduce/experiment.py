@@ -1,4 +1,4 @@
-"""Experiment specs: ``training/experiments/NAME.yaml`` -> ``Experiment`` (one per paper table).
+"""Experiment specs: ``lhf_hf/reproduce/experiments/NAME.yaml`` -> ``Experiment`` (one per paper table).
 
 A spec names the grid (envs x backbones), the data protocol, the LHF filter, the paper's relative
 enhancements E for that table, and budget presets.  A preset overrides the sizes (histories per task,
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import yaml
 
-EXPERIMENTS_DIR = Path(__file__).resolve().parents[2] / "training" / "experiments"
+#: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
+EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
 PRESETS = ("quick", "cpu", "paper")
 OBJECTIVES = ("ad", "dpt", "dicp")
 
@@ -107,7 +108,7 @@ def experiment_names() -> list[str]:
 def load_experiment(
     name_or_path: str, preset: str = "quick", runs: int | None = None
 ) -> Experiment:
-    """Read ``training/experiments/NAME.yaml`` (or a yaml path) at ``preset``."""
+    """Read ``lhf_hf/reproduce/experiments/NAME.yaml`` (or a yaml path) at ``preset``."""
     path = Path(name_or_path)
     if not path.suffix:
         path = EXPERIMENTS_DIR / f"{name_or_path}.yaml"

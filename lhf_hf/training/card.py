@@ -1,4 +1,4 @@
-"""Model card (README.md from ``dataset_cards/model_card.md``) and the loss plot of a checkpoint."""
+"""Model card (README.md from ``lhf_hf/templates/model_card.md``) and the loss plot of a checkpoint."""
 
 from __future__ import annotations
 

@@ -20,12 +20,17 @@ from transformers.trainer_utils import get_last_checkpoint
 
 from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
+from lhf_hf.histories.io import write_text_atomic
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
 
 from .collators import make_collator
 from .windows import HistoryArrays, WindowDataset, load_arrays
 
 TRAIN_CONFIG_FILE = "train_config.json"
+#: Trainer's arguments as JSON: Trainer itself pickles them into ``training_args.bin``, and loading a
+#: pickle runs code, so no folder of ours keeps one (see ``WindowTrainer._save``).
+TRAINING_ARGS_FILE = "training_args.json"
+PICKLED_TRAINING_ARGS = "training_args.bin"
 LOG_FILE = "training_log.json"
 LOSS_PLOT = "training_loss.png"
 # Draws per sampler pass: sampling with replacement keeps the sampler's memory bounded on datasets
@@ -48,16 +53,47 @@ class WindowTrainer(Trainer):
         from .card import render_model_card
 
         config, provenance = self.lhf_card
-        from lhf_hf.histories.io import write_text_atomic
-
         text = render_model_card(config, provenance, load_path=self.args.hub_model_id)
         write_text_atomic(text, Path(self.args.output_dir) / "README.md")
         return None
+
+    def _save(self, output_dir: str | None = None, state_dict=None):
+        """Trainer's save (weights, config), with the training arguments as JSON, not a pickle."""
+        super()._save(output_dir, state_dict)
+        if self.args.should_save:
+            out = Path(output_dir if output_dir is not None else self.args.output_dir)
+            (out / PICKLED_TRAINING_ARGS).unlink(missing_ok=True)
+            write_text_atomic(self.args.to_json_string(), out / TRAINING_ARGS_FILE)
 
     def _get_train_sampler(self, train_dataset=None):
         ds = train_dataset if train_dataset is not None else self.train_dataset
         return torch.utils.data.RandomSampler(
             ds, replacement=True, num_samples=min(len(ds), MAX_SAMPLER_DRAWS)
+        )
+
+
+class _PushCheckpoints(TrainerCallback):
+    """Pushes each saved checkpoint's weights, config and arguments (JSON) to the model repo.
+
+    Trainer's own ``hub_strategy="every_save"`` would upload the output folder with the pickled
+    ``training_args.bin`` in it; this pushes the same files as one commit per save ("Training in
+    progress, step N"), blocking, so a failed push stops training with the Hub's error.
+    """
+
+    FILES = ["config.json", "model.safetensors", TRAINING_ARGS_FILE]
+
+    def on_save(self, args, state, control, **kwargs):
+        if not state.is_world_process_zero:
+            return
+        from huggingface_hub import HfApi
+
+        HfApi().upload_folder(
+            repo_id=args.hub_model_id,
+            folder_path=Path(args.output_dir) / f"checkpoint-{state.global_step}",
+            allow_patterns=self.FILES,
+            commit_message=f"Training in progress, step {state.global_step}",
+            token=args.hub_token,
+            revision=args.hub_revision,
         )
 
 
@@ -207,11 +243,11 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         dataloader_num_workers=0,
         ddp_find_unused_parameters=False,
         use_cpu=not torch.cuda.is_available(),
-        # Trainer pushes each saved checkpoint's weights as it goes ("every_save"); `train` pushes
-        # the final folder with the lhf card at the end.
+        # Trainer creates the repo; _PushCheckpoints pushes each saved checkpoint's weights as it
+        # goes; `train` pushes the final folder with the lhf card at the end.
         push_to_hub=cfg.push_to_hub is not None,
         hub_model_id=cfg.push_to_hub,
-        hub_strategy="every_save",
+        hub_strategy="end",
         hub_private_repo=cfg.hub_private if cfg.push_to_hub else None,
     )
     if args.world_size != world:
@@ -221,7 +257,8 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         args=args,
         train_dataset=windows,
         data_collator=collator,
-        callbacks=[_Throughput(cfg.batch_size * config.max_tokens)],
+        callbacks=[_Throughput(cfg.batch_size * config.max_tokens)]
+        + ([_PushCheckpoints()] if cfg.push_to_hub else []),
     )
     provenance = {
         "train": cfg.to_dict(),

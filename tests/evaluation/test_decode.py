@@ -70,7 +70,7 @@ def test_lean_decoder_equals_the_hf_forward_with_a_cache(kv_heads):
             mask[:, :, 0, pos + 1] = float("-inf")
         want, hf_cache = model.run_backbone(
             x,
-            past_key_values=hf_cache,
+            backbone_cache=hf_cache,
             position_ids=ids,
             use_cache=True,
             attention_mask=mask,

@@ -50,12 +50,12 @@ class ChainModel:
     def run_backbone(
         self,
         inputs_embeds,
-        past_key_values=None,
+        backbone_cache=None,
         position_ids=None,
         use_cache=None,
         attention_mask=None,
     ):
-        return inputs_embeds, past_key_values
+        return inputs_embeds, backbone_cache
 
     def action_distribution(self, hidden):
         return {"action_logits": self.policy_logits.expand(*hidden.shape[:-1], 3)}
@@ -141,12 +141,12 @@ class BanditModel:
     def run_backbone(
         self,
         inputs_embeds,
-        past_key_values=None,
+        backbone_cache=None,
         position_ids=None,
         use_cache=None,
         attention_mask=None,
     ):
-        return inputs_embeds, past_key_values
+        return inputs_embeds, backbone_cache
 
     def dynamics(self, hidden):
         return {"reward_pred": -((hidden - 0.3) ** 2).sum(-1)}

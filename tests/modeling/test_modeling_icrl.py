@@ -194,8 +194,32 @@ def test_incremental_cache_equals_full_forward():
     rest = {k: v[:, 5:] for k, v in batch.items()}
     with torch.no_grad():
         a = model(**first, use_cache=True)
-        b = model(**rest, past_key_values=a.past_key_values, use_cache=True)
+        b = model(**rest, backbone_cache=a.backbone_cache, use_cache=True)
     torch.testing.assert_close(torch.cat([a.action_logits, b.action_logits], 1), full)
+
+
+def test_cached_forward_raises_no_deprecation(caplog):
+    """The backbone's KV cache travels under the name the installed transformers owns
+    (``past_key_values`` up to 5.23, ``cache`` from 5.24): no deprecation warning, no log line."""
+    import warnings
+
+    from transformers.utils import logging as hf_logging
+
+    config = grid_config()
+    model = model_for(config)
+    batch, _ = make_batch(config)
+    first = {k: v[:, :5] for k, v in batch.items()}
+    rest = {k: v[:, 5:] for k, v in batch.items()}
+    hf_logging.get_logger("x").warning_once.__func__.cache_clear()  # warnings logged "once" re-log
+    with warnings.catch_warnings(record=True) as caught, torch.no_grad():
+        warnings.simplefilter("always")
+        a = model(**first, use_cache=True)
+        b = model(**rest, backbone_cache=a.backbone_cache, use_cache=True)
+    assert b.backbone_cache is a.backbone_cache and b.backbone_cache.get_seq_length() == T
+    assert not [w for w in caught if issubclass(w.category, (DeprecationWarning, FutureWarning))], [
+        str(w.message) for w in caught
+    ]
+    assert "deprecated" not in caplog.text
 
 
 def test_save_load_identical_outputs(tmp_path):

@@ -149,6 +149,13 @@ def test_resume_continues_identically(small_darkroom, tmp_path):
     assert json.loads((resumed / "train_config.json").read_text())["resumed_from"].endswith(
         "checkpoint-6"
     )
+    # Trainer's pickled TrainingArguments never stay: JSON beside the weights instead (the
+    # checkpoints' optimizer/scheduler/RNG states are torch files Trainer loads weights_only)
+    for out in (full, resumed):
+        assert not list(out.rglob("training_args.bin")), out
+        for folder in (out, out / "checkpoint-12"):
+            args = json.loads((folder / "training_args.json").read_text())
+            assert args["max_steps"] == 12 and args["seed"] == 0 and args["save_steps"] == 6
 
 
 def test_cli_train_and_its_errors(small_darkroom, tmp_path, capsys):

@@ -1,0 +1,50 @@
+"""The wheel carries everything a non-editable install needs: card templates, experiment specs,
+the kernel source; and the experiment specs and templates are found from the package itself."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_wheel_contains_the_package_data(tmp_path):
+    # --no-build-isolation: the build uses the venv's locked setuptools, no download
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
+         "--wheel-dir", str(tmp_path), str(REPO)],
+        check=True, cwd=tmp_path,
+    )  # fmt: skip
+    (wheel,) = tmp_path.glob("lhf_hf-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    package = REPO / "lhf_hf"
+    data = [
+        *package.glob("templates/*.md"),
+        *package.glob("reproduce/experiments/*.yaml"),
+        *package.glob("collection/kernels/*.cpp"),
+    ]
+    assert len(data) >= 3 + 8 + 1
+    missing = [
+        str(p.relative_to(REPO)) for p in data if p.relative_to(REPO).as_posix() not in names
+    ]
+    assert not missing, f"not in {wheel.name}: {missing}"
+    # the code itself, and nothing from outside the package (tests, results, scripts)
+    assert "lhf_hf/cli/main.py" in names
+    assert not [n for n in names if n.startswith(("tests/", "results/", "scripts/", "benchmarks/"))]
+
+
+def test_specs_and_templates_are_found_inside_the_package():
+    from lhf_hf.histories.card import template_path
+    from lhf_hf.reproduce.experiment import EXPERIMENTS_DIR, experiment_names
+
+    package = Path(__import__("lhf_hf").__file__).parent
+    assert EXPERIMENTS_DIR.parent.parent == package
+    assert {"darkroom-main", "darkroom-noisy", "metaworld-ml1"} <= set(experiment_names())
+    for name in ("histories_card.md", "selection_card.md", "model_card.md"):
+        assert template_path(name).parent.parent == package
