@@ -3,6 +3,7 @@ the kernel source; and the experiment specs and templates are found from the pac
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import zipfile
@@ -48,3 +49,19 @@ def test_specs_and_templates_are_found_inside_the_package():
     assert {"darkroom-main", "darkroom-noisy", "metaworld-ml1"} <= set(experiment_names())
     for name in ("histories_card.md", "selection_card.md", "model_card.md"):
         assert template_path(name).parent.parent == package
+
+
+@pytest.mark.parametrize("newest", ["0", "1"])
+def test_venv_script_never_replaces_a_folder_that_is_not_a_venv(tmp_path, newest):
+    """scripts/_venv.sh rebuilds stale venvs by deleting them: only a folder with pyvenv.cfg."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    r = subprocess.run(
+        ["bash", "-c", f"source {REPO / 'scripts' / '_venv.sh'} dev"],
+        env={**os.environ, "LHF_VENV": str(mine), "LHF_NEWEST": newest},
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode != 0 and "is not a venv (no pyvenv.cfg): refusing" in r.stderr, r
+    assert (mine / "notes.txt").read_text() == "keep"
