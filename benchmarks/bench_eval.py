@@ -151,7 +151,7 @@ def main() -> None:
     print(json.dumps(out["cache"], indent=1))
     if args.skip_planning:
         if args.json:
-            from lhf_hf.histories.io import write_json_atomic
+            from lhf_hf.utils.io import write_json_atomic
 
             write_json_atomic(out, args.json)
         return
@@ -179,7 +179,7 @@ def main() -> None:
     }
     print(json.dumps(out["planning"], indent=1))
     if args.json:
-        from lhf_hf.histories.io import write_json_atomic
+        from lhf_hf.utils.io import write_json_atomic
 
         write_json_atomic(out, args.json)
 

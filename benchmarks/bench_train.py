@@ -153,7 +153,7 @@ def main() -> None:
         results["variants"][objective] = out
         print(objective, json.dumps(out, indent=1))
     if args.json:
-        from lhf_hf.histories.io import write_json_atomic
+        from lhf_hf.utils.io import write_json_atomic
 
         write_json_atomic(results, args.json)
 

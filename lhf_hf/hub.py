@@ -1,245 +1,77 @@
-"""Hub round trips (DESIGN.md 4 and 8): push lhf artifacts by repo id, load them back by repo id.
+"""Hub round trips (DESIGN.md 4 and 8): push any lhf artifact by repo id; load them back by repo id.
 
-Three artifacts travel: a learning-history dataset (also a materialised LHF dataset), an LHF
-selection, and a model checkpoint.  ``push`` uploads a folder as ONE commit (the Hub applies a commit
-all-or-nothing, so a failed push leaves the repo as it was), with a card rendered for the repo id,
-removes files the folder no longer has, and for history datasets moves the git tag ``v3.0`` onto the
-new commit (LeRobot loaders resolve the codebase version through that tag).
-
-Reading goes through ``resolve``: a spec that is an existing local path is used as is; otherwise
-``ORG/NAME`` or ``ORG/NAME@REVISION`` is fetched with ``snapshot_download`` and parsed locally, so
-every reader (``load_histories``, ``load_selection``, ``load_model``) accepts both.  The endpoint,
-token and cache come from the usual ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HOME`` variables.
+Three artifacts travel, each owning its card and checks beside its format: a learning-history dataset
+(``histories.artifact``, also a materialised LHF dataset), an LHF selection (``filtering.artifact``)
+and a model checkpoint (``training.artifact``).  ``push`` finds which one a folder holds and lets it
+push itself; the Hub access underneath (repo ids, ``resolve``, one-commit uploads) is
+``lhf_hf.utils.hub``, which every reader uses and which knows no artifact kind.  This module is the
+top layer's entry point (``lhf push``) and re-exports that access API for users.
 """
 
 from __future__ import annotations
 
-import json
-import re
-from dataclasses import dataclass
 from pathlib import Path
 
-from lhf_hf import constants as C
+from lhf_hf.filtering.artifact import SelectionArtifact
+from lhf_hf.histories.artifact import HistoriesArtifact
+from lhf_hf.training.artifact import CheckpointArtifact
+from lhf_hf.utils.hub import (
+    HubArtifact,
+    HubError,
+    HubRef,
+    download,
+    endpoint,
+    is_hub_snapshot,
+    parse_hub_ref,
+    resolve,
+    source_of,
+    upload_files,
+    validate_repo_id,
+)
 
+#: Every artifact kind, in the order their folders are recognised.
+ARTIFACTS: tuple[type[HubArtifact], ...] = (
+    HistoriesArtifact,
+    CheckpointArtifact,
+    SelectionArtifact,
+)
 #: artifact kind -> Hub repo type
-REPO_TYPES = {"histories": "dataset", "selection": "dataset", "checkpoint": "model"}
-#: The codebase-version tag LeRobot's loaders look for on a dataset repo.
-DATASET_TAG = C.CODEBASE_VERSION
-#: Never uploaded: Trainer's intermediate checkpoints (optimizer state), hidden and private files,
-#: half-written temporaries and the pickled TrainingArguments.
-_EXCLUDED_DIRS = re.compile(r"^(checkpoint-\d+|\..*|_.*|__pycache__)$")
-_EXCLUDED_FILES = re.compile(r"^(\..*|_.*|.*\.tmp|training_args\.bin)$")
-_REPO_REF = re.compile(r"^(?P<repo>[A-Za-z0-9][\w.\-]*/[\w.\-]+)(?:@(?P<rev>[^\s@]+))?$")
+REPO_TYPES = {a.kind: a.repo_type for a in ARTIFACTS}
+
+__all__ = [
+    "ARTIFACTS",
+    "REPO_TYPES",
+    "HubArtifact",
+    "HubError",
+    "HubRef",
+    "artifact_for",
+    "artifact_kind",
+    "download",
+    "endpoint",
+    "is_hub_snapshot",
+    "parse_hub_ref",
+    "push",
+    "resolve",
+    "source_of",
+    "upload_files",
+    "validate_repo_id",
+]
 
 
-class HubError(RuntimeError):
-    """A Hub operation failed; the message says what and how to fix it."""
-
-
-@dataclass(frozen=True)
-class HubRef:
-    """``ORG/NAME`` (and an optional revision: a branch, tag or commit)."""
-
-    repo_id: str
-    revision: str | None = None
-
-    def __str__(self) -> str:
-        return self.repo_id + (f"@{self.revision}" if self.revision else "")
-
-
-def parse_hub_ref(spec: str) -> HubRef | None:
-    """``"org/name"`` / ``"org/name@rev"`` -> ``HubRef``; ``None`` when ``spec`` is not of that shape
-    (a relative path such as ``data/x`` has the shape too: callers try the local path first)."""
-    m = _REPO_REF.match(str(spec))
-    if m is None or str(spec).startswith(("./", "../", "/", "~")):
-        return None
-    return HubRef(m["repo"], m["rev"])
-
-
-def validate_repo_id(repo_id: str) -> str:
-    from huggingface_hub.errors import HFValidationError
-    from huggingface_hub.utils import validate_repo_id as _validate
-
-    if parse_hub_ref(repo_id) is None or "@" in repo_id:
-        raise HubError(f"invalid repo id {repo_id!r}: expected ORG/NAME (letters, digits, - _ .)")
-    try:
-        _validate(repo_id)
-    except HFValidationError as exc:
-        raise HubError(f"invalid repo id {repo_id!r}: {exc}") from None
-    return repo_id
-
-
-def endpoint() -> str:
-    from huggingface_hub import constants
-
-    return constants.ENDPOINT
-
-
-# ---------------------------------------------------------------------------- read
-def is_hub_snapshot(path: Path) -> bool:
-    """True for a folder inside the huggingface_hub cache (read-only: never write into it)."""
-    return path.parent.name == "snapshots" and path.parent.parent.name.count("--") >= 2
-
-
-def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
-    """A local folder for ``spec``: the path itself when it exists, else a snapshot of the repo."""
-    p = Path(spec).expanduser()
-    if p.exists():
-        return p
-    ref = parse_hub_ref(str(spec))
-    if ref is None:
-        raise FileNotFoundError(
-            f"no {what} at {str(spec)!r}: neither an existing path nor a Hub repo id "
-            "(ORG/NAME[@REVISION])"
-        )
-    try:
-        return download(ref, repo_type)
-    except HubError as exc:
-        raise HubError(f"no {what} at {str(spec)!r} locally, and on the Hub: {exc}") from None
-
-
-def download(ref: HubRef, repo_type: str) -> Path:
-    """``snapshot_download`` with errors that say what is wrong."""
-    from huggingface_hub import snapshot_download
-    from huggingface_hub.errors import (
-        GatedRepoError,
-        HfHubHTTPError,
-        HFValidationError,
-        LocalEntryNotFoundError,
-        RepositoryNotFoundError,
-        RevisionNotFoundError,
+def artifact_for(path: Path) -> type[HubArtifact]:
+    """The artifact kind whose marker files ``path`` holds."""
+    for artifact in ARTIFACTS:
+        if artifact.detect(path):
+            return artifact
+    raise ValueError(
+        f"{path} is not an lhf artifact: expected a history dataset (meta/info.json), a selection "
+        "(filter_config.json) or a checkpoint (config.json)"
     )
 
-    where = f"{repo_type} repo {ref} on {endpoint()}"
-    try:
-        return Path(snapshot_download(ref.repo_id, repo_type=repo_type, revision=ref.revision))
-    except HFValidationError as exc:
-        raise HubError(f"invalid repo id {str(ref)!r}: {exc}") from None
-    except RevisionNotFoundError:
-        raise HubError(f"{where}: revision {ref.revision!r} does not exist") from None
-    except GatedRepoError:
-        raise HubError(f"{where} is gated: request access on the Hub, then log in") from None
-    except RepositoryNotFoundError:
-        raise HubError(
-            f"{where} does not exist (or is private: log in with `hf auth login` or set HF_TOKEN)"
-        ) from None
-    except LocalEntryNotFoundError as exc:
-        raise HubError(
-            f"{where}: cannot reach the Hub and it is not in the cache ({exc})"
-        ) from None
-    except HfHubHTTPError as exc:
-        raise HubError(f"{where}: {exc}") from None
 
-
-def source_of(spec: str | Path, path: Path) -> str:
-    """What to record as an artifact's origin: ``org/name@commit`` for a Hub snapshot, else the
-    absolute local path."""
-    path = Path(path)
-    if is_hub_snapshot(path) and not Path(spec).expanduser().exists():
-        ref = parse_hub_ref(str(spec))
-        if ref is not None:
-            return f"{ref.repo_id}@{path.name}"
-    return str(path.resolve())
-
-
-# ---------------------------------------------------------------------------- push
 def artifact_kind(path: Path) -> str:
     """``histories`` / ``selection`` / ``checkpoint`` by the folder's marker files."""
-    from lhf_hf.filtering.select import CONFIG_FILE
-
-    if (path / C.INFO_PATH).exists():
-        return "histories"
-    if (path / "config.json").exists():
-        model_type = json.loads((path / "config.json").read_text()).get("model_type")
-        if model_type != "lhf_icrl":
-            raise ValueError(f"{path} holds a {model_type!r} model, not an lhf_icrl checkpoint")
-        return "checkpoint"
-    if (path / CONFIG_FILE).exists():
-        return "selection"
-    raise ValueError(
-        f"{path} is not an lhf artifact: expected a history dataset ({C.INFO_PATH}), a selection "
-        f"({CONFIG_FILE}) or a checkpoint (config.json)"
-    )
-
-
-def upload_files(root: Path) -> list[str]:
-    """Relative paths (posix) of the files ``push`` uploads from ``root``, sorted."""
-    out = []
-    for p in sorted(root.rglob("*")):
-        rel = p.relative_to(root)
-        if any(_EXCLUDED_DIRS.match(part) for part in rel.parts[:-1]):
-            continue
-        if p.is_file() and not _EXCLUDED_FILES.match(p.name):
-            out.append(rel.as_posix())
-    return out
-
-
-def render_card_for(path: Path, kind: str, repo_id: str) -> str:
-    """The README.md a pushed artifact carries: its card, with load snippets naming ``repo_id``."""
-    if kind == "histories":
-        from lhf_hf.histories.card import render_card
-        from lhf_hf.histories.reader import HistoryDataset
-
-        return render_card(HistoryDataset(path), load_path=repo_id)
-    if kind == "checkpoint":
-        from transformers import AutoConfig
-
-        import lhf_hf.modeling  # noqa: F401  (registers lhf_icrl)
-        from lhf_hf.evaluation.evaluate import MODEL_EVALS_FILE
-        from lhf_hf.training.card import render_model_card
-        from lhf_hf.training.trainer import TRAIN_CONFIG_FILE
-
-        prov = path / TRAIN_CONFIG_FILE
-        if not prov.exists():
-            raise ValueError(
-                f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)"
-            )
-        evals = path / MODEL_EVALS_FILE
-        return render_model_card(
-            AutoConfig.from_pretrained(path),
-            json.loads(prov.read_text()),
-            load_path=repo_id,
-            evaluations=json.loads(evals.read_text()) if evals.exists() else None,
-        )
-    from lhf_hf.filtering.card import render_selection_card
-
-    return render_selection_card(path, repo_id)
-
-
-def _check_artifact(path: Path, kind: str) -> None:
-    """Open the artifact the way its readers will, so a broken folder is never pushed."""
-    if kind == "histories":
-        from lhf_hf.histories.reader import HistoryDataset
-
-        HistoryDataset(path).data_files()
-    elif kind == "selection":
-        from lhf_hf.filtering.select import load_selection
-
-        load_selection(path)
-    else:
-        from lhf_hf.evaluation.evaluate import load_model
-
-        if not any((path / f).exists() for f in ("model.safetensors", "pytorch_model.bin")):
-            raise ValueError(f"{path}: no weights (model.safetensors) to push")
-        load_model(str(path))
-
-
-def _require_token(token: str | None) -> None:
-    from huggingface_hub import constants, get_token
-
-    if (
-        token is None
-        and get_token() is None
-        and constants.ENDPOINT.rstrip("/")
-        in (
-            "https://huggingface.co",
-            "https://hf.co",
-        )
-    ):
-        raise HubError(
-            "pushing to https://huggingface.co needs a write token: run `hf auth login`, set "
-            "HF_TOKEN, or pass --token"
-        )
+    return artifact_for(Path(path)).kind
 
 
 def push(
@@ -253,72 +85,19 @@ def push(
 ) -> dict:
     """Push the artifact folder ``path`` to ``repo_id`` (created if absent) as one commit.
 
-    Returns ``{kind, repo_id, repo_type, revision, commit, url, files, tag}``; raises ``HubError`` on
-    any failure (a success is only reported once the commit and, for datasets, the tag exist).
+    Returns ``{kind, repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises
+    ``HubError`` on any failure (a success is only reported once the commit and, for datasets, the
+    tag exist).
     """
-    from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
-    from huggingface_hub.errors import HfHubHTTPError
-
     path = Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f"no artifact folder at {path}")
     validate_repo_id(repo_id)
-    kind = artifact_kind(path)
-    _check_artifact(path, kind)
-    repo_type = REPO_TYPES[kind]
-    _require_token(token)
-    branch = revision or "main"
-    files = upload_files(path)
-    card = render_card_for(path, kind, repo_id).encode()
-    ops = [CommitOperationAdd(f, str(path / f)) for f in files if f != C.CARD_PATH]
-    ops.append(CommitOperationAdd(C.CARD_PATH, card))
-    api = HfApi(token=token)
-    step = "create the repo"
-    try:
-        api.create_repo(repo_id, repo_type=repo_type, private=private, exist_ok=True)
-        if branch != "main":
-            step = f"create the branch {branch!r}"
-            api.create_branch(repo_id, branch=branch, repo_type=repo_type, exist_ok=True)
-        step = "list the files already there"
-        remote = set(api.list_repo_files(repo_id, repo_type=repo_type, revision=branch))
-        keep = {op.path_in_repo for op in ops} | {".gitattributes"}
-        ops += [CommitOperationDelete(f) for f in sorted(remote - keep)]
-        step = "commit"
-        info = api.create_commit(
-            repo_id,
-            ops,
-            commit_message=commit_message or f"lhf push: {kind} from {path.name}",
-            repo_type=repo_type,
-            revision=branch,
-        )
-    except (HfHubHTTPError, OSError, ValueError, RuntimeError) as exc:
-        # Before the commit call returns, the repo is unchanged: the Hub applies a commit whole.
-        cause = f"{exc}; {exc.__cause__}" if exc.__cause__ else str(exc)
-        raise HubError(
-            f"push of {path} to {repo_type} repo {repo_id} on {endpoint()} failed at '{step}' "
-            f"(nothing was committed): {cause}"
-        ) from None
-    tag = None
-    if kind == "histories":
-        tag = DATASET_TAG
-        try:
-            refs = api.list_repo_refs(repo_id, repo_type=repo_type)
-            if any(t.name == tag for t in refs.tags):
-                api.delete_tag(repo_id, tag=tag, repo_type=repo_type)
-            api.create_tag(repo_id, tag=tag, revision=info.oid, repo_type=repo_type)
-        except HfHubHTTPError as exc:
-            raise HubError(
-                f"{path} was committed to {repo_id} ({info.oid[:12]}) but the {tag} tag could not be "
-                f"set, so LeRobot loaders will not find it: {exc}.  Run `lhf push` again."
-            ) from None
-    return {
-        "kind": kind,
-        "repo_id": repo_id,
-        "repo_type": repo_type,
-        "revision": branch,
-        "commit": info.oid,
-        "url": str(info.commit_url),
-        "uploaded": len(files) + (C.CARD_PATH not in files),
-        "deleted": len(ops) - len(files) - (C.CARD_PATH not in files),
-        "tag": tag,
-    }
+    return artifact_for(path).push(
+        path,
+        repo_id,
+        private=private,
+        revision=revision,
+        token=token,
+        commit_message=commit_message,
+    )

@@ -41,8 +41,8 @@ def test_wheel_contains_the_package_data(tmp_path):
 
 
 def test_specs_and_templates_are_found_inside_the_package():
-    from lhf_hf.histories.card import template_path
     from lhf_hf.reproduce.experiment import EXPERIMENTS_DIR, experiment_names
+    from lhf_hf.utils.templates import template_path
 
     package = Path(__import__("lhf_hf").__file__).parent
     assert EXPERIMENTS_DIR.parent.parent == package

@@ -66,8 +66,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     import gc
 
-    from lhf_hf.collection import collect
-    from lhf_hf.configs import CollectConfig
+    from lhf_hf.collection import collect  # deferred: heavy
+    from lhf_hf.configs import CollectConfig  # deferred: heavy
 
     kwargs = {} if args.workers is None else {"workers": args.workers}
     config = CollectConfig(

@@ -17,7 +17,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.evaluation import compare
+    from lhf_hf.evaluation import compare  # deferred: heavy
 
     r = compare(args.baseline, args.lhf, args.out)
     print(r["table"])

@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.histories.derive import derive_half
+    from lhf_hf.histories.derive import derive_half  # deferred: heavy
 
     ds = derive_half(
         args.src, args.out, fraction=args.fraction, overwrite=args.overwrite, resume=args.resume

@@ -31,8 +31,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def collect(oracle: bool = False, split_seed: int = 0, metaworld_tasks: int = 2) -> list[dict]:
     """Rows of ``lhf envs`` (importable: the CLI only formats them)."""
-    from lhf_hf.envs import get_spec, list_env_ids
-    from lhf_hf.envs.oracle import oracle_report
+    from lhf_hf.envs import get_spec, list_env_ids  # deferred: heavy
+    from lhf_hf.envs.oracle import oracle_report  # deferred: heavy
 
     rows = []
     for env_id in list_env_ids():

@@ -42,8 +42,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.configs import EvalConfig
-    from lhf_hf.evaluation import evaluate
+    from lhf_hf.configs import EvalConfig  # deferred: heavy
+    from lhf_hf.evaluation import evaluate  # deferred: heavy
 
     cfg = EvalConfig(
         model=args.model,

@@ -48,8 +48,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.configs import FilterConfig
-    from lhf_hf.filtering.run import run_filter
+    from lhf_hf.configs import FilterConfig  # deferred: heavy
+    from lhf_hf.filtering.run import run_filter  # deferred: heavy
 
     config = FilterConfig(
         strategy=args.strategy,

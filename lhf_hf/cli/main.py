@@ -1,4 +1,8 @@
-"""Entry point of the ``lhf`` console script (also ``python -m lhf_hf``)."""
+"""Entry point of the ``lhf`` console script (also ``python -m lhf_hf``).
+
+Each command imports what it runs inside its ``run`` (``# deferred: heavy``): those modules pull in
+torch, transformers and datasets, and ``lhf --help`` or a bad flag should not wait for them.
+"""
 
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.hub import push
+    from lhf_hf.hub import push  # deferred: heavy
 
     result = push(
         args.path,

@@ -8,7 +8,7 @@ HELP = "run a paper experiment end to end (collect, filter, train, evaluate, com
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from lhf_hf.reproduce import experiment_names
+    from lhf_hf.reproduce import experiment_names  # deferred: heavy
 
     p = subparsers.add_parser(
         "reproduce",
@@ -29,7 +29,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.reproduce import reproduce
+    from lhf_hf.reproduce import reproduce  # deferred: heavy
 
     reproduce(args.experiment, args.preset, args.runs, args.out, args.work)
     return 0

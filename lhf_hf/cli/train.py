@@ -56,8 +56,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.configs import TrainConfig
-    from lhf_hf.training import train
+    from lhf_hf.configs import TrainConfig  # deferred: heavy
+    from lhf_hf.training import train  # deferred: heavy
 
     cfg = TrainConfig(
         dataset=args.dataset,

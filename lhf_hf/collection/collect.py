@@ -25,13 +25,13 @@ from lhf_hf.histories.reader import HistoryDataset, load_histories
 from lhf_hf.histories.writer import (
     finalize,
     is_complete,
-    library_versions,
     prepare_output,
     task_done,
     write_task,
 )
+from lhf_hf.utils.versions import library_versions
 
-from .batched_collector import collect_chunk
+from .batched_collector import check_device, collect_chunk, resolve_ppo_backend
 from .sb3_collector import collect_and_write_task
 
 
@@ -216,8 +216,6 @@ def collect(
     """Collect ``config`` into ``out`` and return the finished dataset."""
     out = Path(out)
     if config.collector == "batched":
-        from .batched_collector import check_device, resolve_ppo_backend
-
         check_device(config.device)  # before anything is written
         config.ppo_backend = resolve_ppo_backend(config)  # stored resolved: part of the identity
     ranks = _Ranks()

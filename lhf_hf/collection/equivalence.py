@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lhf_hf.configs.collect import CollectConfig
+from lhf_hf.utils.io import save_figure_atomic
 
 from .batched_collector import collect_chunk
 from .sb3_collector import collect_task_histories
@@ -87,8 +88,6 @@ class Comparison:
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-
-        from lhf_hf.histories.io import save_figure_atomic
 
         fig, ax = plt.subplots(figsize=(6, 3.6), dpi=120)
         x = np.arange(1, self.sb3.shape[1] + 1)

@@ -6,6 +6,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from lhf_hf.utils.hub import validate_repo_id
+
 # Mirrors lhf_hf.modeling (kept here so that configs import without transformers; a test checks
 # that both agree).
 OBJECTIVES = ("ad", "dpt", "dicp")
@@ -94,8 +96,6 @@ class TrainConfig:
             if not 0 <= getattr(self, name) < 1:
                 raise bad(name, "must be in [0, 1)")
         if self.push_to_hub is not None:
-            from lhf_hf.hub import validate_repo_id
-
             validate_repo_id(self.push_to_hub)
 
     def to_dict(self) -> dict:

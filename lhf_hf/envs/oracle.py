@@ -29,7 +29,7 @@ def gridworld_oracle_returns(env_id: str, tasks: Sequence[int]) -> tuple[np.ndar
 
 
 def _scripted_policy(task_name: str):
-    from .metaworld_ml1 import import_metaworld
+    from .metaworld_ml1 import import_metaworld  # deferred: metaworld is an optional extra
 
     import_metaworld()
     import metaworld.policies as policies

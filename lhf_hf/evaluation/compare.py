@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+
 from .evaluate import RESULTS_FILE
 from .plots import plot_comparison
 
@@ -89,8 +91,6 @@ def compare(baseline: list[str], lhf: list[str], out: str | Path | None = None) 
     table = markdown_table(rows, env_id)
     result = {"env_id": env_id, "episodes": episodes.pop(), "rows": rows, "table": table}
     if out is not None:
-        from lhf_hf.histories.io import write_json_atomic, write_text_atomic
-
         out = Path(out)
         write_json_atomic(result, out / "compare.json")
         write_text_atomic(table + "\n", out / "compare.md")

@@ -8,7 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+import lhf_hf.modeling  # noqa: F401
 from lhf_hf.configs.evaluate import EvalConfig
+from lhf_hf.envs import get_spec, task_split
+from lhf_hf.modeling import load_model
+from lhf_hf.training.card import MODEL_EVALS_FILE, write_model_card
+from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
+from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
+from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.versions import library_versions
 
 from .plots import plot_eval_curve
 from .rollout import rollout
@@ -16,33 +24,9 @@ from .task_batch import make_task_batch
 
 RESULTS_FILE = "eval_results.json"
 CURVE_FILE = "eval_curve.png"
-MODEL_EVALS_FILE = "evaluations.json"  # in the checkpoint: every evaluation, rendered in its card
-
-
-def load_model(path: str):
-    from transformers import AutoConfig, AutoModel
-
-    import lhf_hf.modeling  # noqa: F401  (registers lhf_icrl)
-    from lhf_hf.hub import resolve
-
-    p = resolve(
-        path, "model", "model checkpoint"
-    )  # a local folder, or a Hub model repo ORG/NAME[@REVISION]
-    if not (p / "config.json").exists():
-        raise FileNotFoundError(
-            f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
-        )
-    config = AutoConfig.from_pretrained(p)
-    if getattr(config, "model_type", None) != "lhf_icrl":
-        raise ValueError(
-            f"{path} holds a {config.model_type!r} model, not an lhf_icrl (ICRL) model"
-        )
-    return AutoModel.from_pretrained(p).eval()
 
 
 def resolve_tasks(spec_env: str, tasks: str, split_seed: int) -> list[int]:
-    from lhf_hf.envs import task_split
-
     train, test = task_split(spec_env, split_seed)
     if tasks == "test":
         return list(test)
@@ -66,11 +50,6 @@ def curve_summary(returns: np.ndarray) -> dict:
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
     to the checkpoint's card.  Returns the results dict."""
-    from lhf_hf.envs import get_spec
-    from lhf_hf.histories.io import write_json_atomic
-    from lhf_hf.histories.writer import library_versions
-    from lhf_hf.hub import is_hub_snapshot, resolve, source_of
-    from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 
     model_dir = resolve(cfg.model, "model", "model checkpoint")
     model = load_model(str(model_dir))
@@ -143,10 +122,6 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
 
 def _add_to_model_card(model_dir: Path, results: dict) -> None:
     """Append a summary to the checkpoint's evaluations and re-render its card (model-index)."""
-    from lhf_hf.histories.io import write_json_atomic
-    from lhf_hf.training.card import write_model_card
-    from lhf_hf.training.trainer import TRAIN_CONFIG_FILE
-
     prov_path = model_dir / TRAIN_CONFIG_FILE
     if not prov_path.exists():
         return  # not an lhf checkpoint folder (no card to update)
@@ -168,8 +143,6 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
     evals = [e for e in evals if e["out"] != summary["out"]] + [summary]
     write_json_atomic(evals, evals_path)
     from transformers import AutoConfig
-
-    import lhf_hf.modeling  # noqa: F401
 
     write_model_card(
         model_dir, AutoConfig.from_pretrained(model_dir), json.loads(prov_path.read_text()), evals

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lhf_hf.histories.io import save_figure_atomic
+from lhf_hf.utils.io import save_figure_atomic
 
 
 def _plt():

@@ -10,13 +10,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lhf_hf.envs import get_spec, make, make_batched
+
 
 class GridworldTasks:
     """The batched numpy core (one copy per task)."""
 
     def __init__(self, env_id: str, tasks: list[int], split_seed: int, seed: int):
-        from lhf_hf.envs import make_batched
-
         self.core = make_batched(env_id, tasks)
         self.horizon = self.core.horizon
         self.has_success = False
@@ -34,8 +34,6 @@ class GymTasks:
     """One gymnasium env per task (Meta-World ML1): continuous actions, clipped to the action box."""
 
     def __init__(self, env_id: str, tasks: list[int], split_seed: int, seed: int):
-        from lhf_hf.envs import get_spec, make
-
         spec = get_spec(env_id)
         self.envs = [make(env_id, t, split_seed=split_seed) for t in tasks]
         self.horizon = spec.horizon
@@ -75,6 +73,4 @@ TASK_BATCHES: dict[str, Callable[..., object]] = {
 
 
 def make_task_batch(env_id: str, tasks: list[int], split_seed: int, seed: int):
-    from lhf_hf.envs import get_spec
-
     return TASK_BATCHES[get_spec(env_id).family](env_id, list(tasks), split_seed, seed)

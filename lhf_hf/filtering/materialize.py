@@ -11,6 +11,7 @@ import pyarrow as pa
 from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
+from lhf_hf.histories.derive import write_derived
 
 from .select import Selection
 
@@ -66,7 +67,6 @@ def materialize(
 
     Every task keeps its number of histories; the card says how the dataset was derived.
     """
-    from lhf_hf.histories.derive import write_derived
 
     _check_source(ds, selection)
     counts = selection.counts()

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
-from lhf_hf.histories.io import write_text_atomic
 from lhf_hf.histories.reader import load_histories
+from lhf_hf.utils.io import write_text_atomic
 
 from .card import render_selection_card
 from .materialize import materialize

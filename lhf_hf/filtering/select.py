@@ -21,6 +21,10 @@ from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
+from lhf_hf.envs import get_spec
+from lhf_hf.utils.hub import resolve
+from lhf_hf.utils.io import write_json_atomic, write_parquet_atomic
+from lhf_hf.utils.versions import library_versions
 
 from .resample import resample_task
 from .scores import score_arrays
@@ -42,7 +46,6 @@ def _r_max_lookup(r_max, env_id: str | None) -> dict | float:
             "r_max is needed: pass r_max=... (a return, or {task: return}) or env_id=... for "
             "an env whose optimal returns are known (gridworlds)"
         )
-    from lhf_hf.envs import get_spec
 
     spec = get_spec(env_id)
     if spec.optimal_returns is None:
@@ -235,9 +238,6 @@ class Selection:
         return out
 
     def save(self, out: str | Path, summary: dict | None = None) -> Path:
-        from lhf_hf.histories.io import write_json_atomic, write_parquet_atomic
-        from lhf_hf.histories.writer import library_versions
-
         out = Path(out)
         sel = self.table.filter(pa.compute.greater(self.table.column("count"), 0))
         write_parquet_atomic(sel, out / SELECTION_FILE)
@@ -258,7 +258,6 @@ class Selection:
 def load_selection(path: str | Path) -> Selection:
     """Read a selection folder written by ``Selection.save`` / ``lhf filter``, or a Hub dataset repo
     ``ORG/NAME[@REVISION]`` that holds one (pushed with ``lhf push``)."""
-    from lhf_hf.hub import resolve
 
     path = resolve(path, "dataset", "selection")
     for f in (SCORES_FILE, CONFIG_FILE):

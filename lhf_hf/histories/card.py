@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from lhf_hf import constants as C
+from lhf_hf.envs import get_spec
+from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.templates import template_path
 
-from .io import write_text_atomic
 from .plots import learning_curves, plot_learning_curve
-
-#: Card templates ship inside the package (package data), so a wheel install renders cards too.
-TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
 
 COLUMN_MEANING = {
     C.OBS: "state the action was taken in",
@@ -31,15 +28,6 @@ COLUMN_MEANING = {
 }
 
 
-def template_path(name: str) -> Path:
-    path = TEMPLATES / name
-    if not path.exists():
-        raise FileNotFoundError(
-            f"card template {path} is missing: the lhf_hf install is incomplete (reinstall it)"
-        )
-    return path
-
-
 def _fmt(x: float) -> str:
     return f"{x:.2f}"
 
@@ -47,8 +35,6 @@ def _fmt(x: float) -> str:
 def render_card(ds, load_path: str | None = None) -> str:
     """Render the card text of dataset ``ds`` (a ``HistoryDataset``)."""
     from huggingface_hub import DatasetCard, DatasetCardData
-
-    from lhf_hf.envs import get_spec
 
     lhf, info = ds.lhf, ds.info
     spec = get_spec(ds.env_id)
@@ -183,8 +169,6 @@ def _how_collected(collect: dict, lhf: dict) -> str:
 
 def write_card(ds, load_path: str | None = None) -> None:
     """Write the learning-curve PNG and README.md of ``ds``."""
-    from lhf_hf.envs import get_spec
-
     spec = get_spec(ds.env_id)
     optimal = None
     if spec.optimal_returns is not None:

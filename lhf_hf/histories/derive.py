@@ -13,9 +13,11 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from lhf_hf.utils.versions import library_versions
+
 from .reader import HistoryDataset, load_histories
 from .schema import TaskHistories
-from .writer import finalize, is_complete, library_versions, prepare_output, task_done, write_task
+from .writer import finalize, is_complete, prepare_output, task_done, write_task
 
 
 def write_derived(

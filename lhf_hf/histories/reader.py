@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
+from lhf_hf.utils.hub import resolve, source_of
 
 from .schema import TaskHistories, task_histories_from_frames
 
@@ -193,7 +194,6 @@ class HistoryDataset:
 def load_histories(path: str | Path) -> HistoryDataset:
     """Open a learning-history dataset (LeRobot v3.0 layout + lhf tables): a local folder, or a Hub
     dataset repo ``ORG/NAME[@REVISION]`` (fetched with ``snapshot_download``, then read locally)."""
-    from lhf_hf.hub import resolve, source_of
 
     root = resolve(path, "dataset", "dataset")
     try:

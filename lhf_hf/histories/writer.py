@@ -16,9 +16,7 @@ meta tables, stats, info, card and plot, then removes ``meta/.parts``.
 from __future__ import annotations
 
 import json
-import platform
 import shutil
-from collections.abc import Iterable
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -27,8 +25,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lhf_hf import constants as C
+from lhf_hf.envs import GRIDWORLD_VARIANTS, get_spec
+from lhf_hf.utils.io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
 
-from .io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
+from .card import write_card
+from .reader import load_histories
 from .schema import TaskHistories, episodes_table, features, frames_table, histories_table
 
 NUMERIC_STATS = (C.OBS, C.ACTION, C.REWARD, C.NEXT_OBS, C.OPTIMAL_ACTION)
@@ -46,30 +47,6 @@ def data_path(position: int) -> str:
 
 def _part(root: Path, position: int, suffix: str) -> Path:
     return root / C.PARTS_DIR / f"task-{position:06d}.{suffix}"
-
-
-def library_versions(extra: Iterable[str] = ()) -> dict[str, str]:
-    """Versions of the libraries that shape the data (recorded in every artifact)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    names = [
-        "lhf_hf",
-        "numpy",
-        "pyarrow",
-        "datasets",
-        "huggingface-hub",
-        "gymnasium",
-        "stable-baselines3",
-        "torch",
-        *extra,
-    ]
-    out = {"python": platform.python_version()}
-    for name in names:
-        try:
-            out[name] = version(name)
-        except PackageNotFoundError:
-            pass
-    return out
 
 
 def _diff(a: dict, b: dict) -> list[str]:
@@ -230,10 +207,6 @@ def finalize(
 
     Returns the loaded ``HistoryDataset``.
     """
-    from lhf_hf.envs import get_spec
-
-    from .card import write_card
-    from .reader import load_histories
 
     root = Path(root)
     frames_per_task = histories * steps
@@ -257,7 +230,6 @@ def finalize(
     train, _ = spec.split(split_seed)
     train = set(train)
     rows = []
-    from lhf_hf.envs import GRIDWORLD_VARIANTS
 
     for t in tasks:
         if env_id in GRIDWORLD_VARIANTS:

@@ -1,6 +1,7 @@
 """ICRL models (AD, DPT, DICP) on ``transformers.LlamaModel``; registered with AutoConfig/AutoModel."""
 
 from .configuration_icrl import OBJECTIVES, PRESETS, ICRLConfig, icrl_config
+from .loading import load_model
 from .modeling_icrl import ICRLModel, ICRLOutput, ICRLPreTrainedModel
 
 __all__ = [
@@ -11,4 +12,5 @@ __all__ = [
     "ICRLOutput",
     "ICRLPreTrainedModel",
     "icrl_config",
+    "load_model",
 ]

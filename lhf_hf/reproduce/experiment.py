@@ -15,6 +15,8 @@ from pathlib import Path
 
 import yaml
 
+from lhf_hf.envs import get_spec
+
 #: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
 EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
 PRESETS = ("quick", "cpu", "paper")
@@ -75,8 +77,6 @@ class Experiment:
     budget: str = ""
 
     def __post_init__(self) -> None:
-        from lhf_hf.envs import get_spec
-
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}: one of {PRESETS}")
         for env in self.envs:

@@ -14,7 +14,19 @@ import json
 import time
 from pathlib import Path
 
+from lhf_hf.collection import collect
+from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
+from lhf_hf.evaluation import evaluate
+from lhf_hf.evaluation.compare import compare
+from lhf_hf.filtering.run import run_filter
+from lhf_hf.histories.derive import derive_half
+from lhf_hf.training import train
+from lhf_hf.training.trainer import get_last_checkpoint
+from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+from lhf_hf.utils.versions import library_versions
+
 from .experiment import Experiment, load_experiment
+from .report import render_report
 from .stages import Stage, StageRunner
 
 
@@ -30,13 +42,6 @@ def _arms(exp: Experiment) -> list[tuple[str, dict]]:
 def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
     """Every stage of ``exp`` in run order (their folders under ``work``), and
     ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``."""
-    from lhf_hf.collection import collect
-    from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
-    from lhf_hf.evaluation import evaluate
-    from lhf_hf.filtering.run import run_filter
-    from lhf_hf.histories.derive import derive_half
-    from lhf_hf.training import train
-    from lhf_hf.training.trainer import get_last_checkpoint
 
     stages: list[Stage] = []
     evals: dict[tuple[str, str, str], list[Stage]] = {}
@@ -122,11 +127,6 @@ def reproduce(
     echo=print,
 ) -> Path:
     """Run experiment ``name`` at ``preset``; returns the path of ``report.md``."""
-    from lhf_hf.evaluation.compare import compare
-    from lhf_hf.histories.io import write_json_atomic, write_text_atomic
-    from lhf_hf.histories.writer import library_versions
-
-    from .report import render_report
 
     exp = load_experiment(name, preset, runs)
     out = Path(out or f"results/{exp.name}-{preset}")

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from lhf_hf.utils.io import write_json_atomic
+
 DONE_FILE = "stage.json"
 
 
@@ -49,8 +51,6 @@ class StageRunner:
         self.log: list[dict] = []
 
     def run(self, stage: Stage) -> Path:
-        from lhf_hf.histories.io import write_json_atomic
-
         out = stage.path(self.work)
         self.done += 1
         head = f"[{self.done}/{self.total or '?'}] {stage.kind:<8} {stage.label}"

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lhf_hf.histories.card import template_path
-from lhf_hf.histories.io import save_figure_atomic, write_text_atomic
+from lhf_hf.utils.io import save_figure_atomic, write_text_atomic
+from lhf_hf.utils.templates import template_path
+
+MODEL_EVALS_FILE = "evaluations.json"  # in the checkpoint: every evaluation, rendered in its card
 
 OBJECTIVE_NAMES = {
     "ad": "Algorithm Distillation (AD)",

@@ -20,9 +20,15 @@ from transformers.trainer_utils import get_last_checkpoint
 
 from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
-from lhf_hf.histories.io import write_text_atomic
+from lhf_hf.envs import get_spec
+from lhf_hf.filtering.select import SCORES_FILE, load_selection
+from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
+from lhf_hf.utils.hub import resolve, source_of
+from lhf_hf.utils.io import sha256_file, write_json_atomic, write_text_atomic
+from lhf_hf.utils.versions import library_versions
 
+from .card import plot_loss, render_model_card, write_model_card
 from .collators import make_collator
 from .windows import HistoryArrays, WindowDataset, load_arrays
 
@@ -50,7 +56,6 @@ class WindowTrainer(Trainer):
     def create_model_card(self, *args, **kwargs):
         if self.lhf_card is None or not self.is_world_process_zero():
             return None
-        from .card import render_model_card
 
         config, provenance = self.lhf_card
         text = render_model_card(config, provenance, load_path=self.args.hub_model_id)
@@ -165,10 +170,6 @@ def check_model_env(config: ICRLConfig, spec) -> None:
 # ---------------------------------------------------------------------------- selection
 def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.ndarray, dict]:
     """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
-    from lhf_hf.filtering.select import SCORES_FILE, load_selection
-    from lhf_hf.histories.io import sha256_file
-    from lhf_hf.hub import resolve, source_of
-
     local = resolve(selection_dir, "dataset", "selection")
     sel = load_selection(local)
     fp = sel.source.get("fingerprint")
@@ -195,9 +196,6 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
 # ---------------------------------------------------------------------------- train
 def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
     """Everything ``train`` runs, without running it: (trainer, provenance dict)."""
-    from lhf_hf.envs import get_spec
-    from lhf_hf.histories import load_histories
-
     ds = load_histories(cfg.dataset)
     spec = get_spec(ds.env_id)
     has_optimal = C.OPTIMAL_ACTION in ds.info.get("features", {})
@@ -280,9 +278,6 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
 
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
-    from lhf_hf.histories.io import write_json_atomic
-    from lhf_hf.histories.writer import library_versions
-
     out = Path(cfg.out)
     resume = None
     last = get_last_checkpoint(str(out)) if out.is_dir() else None
@@ -320,7 +315,6 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     )
     write_json_atomic(provenance, out / TRAIN_CONFIG_FILE)
     write_json_atomic(trainer.state.log_history, out / LOG_FILE)
-    from .card import plot_loss, write_model_card
 
     plot_loss(trainer.state.log_history, out / LOSS_PLOT)
     write_model_card(out, trainer.model.config, provenance)

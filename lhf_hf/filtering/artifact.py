@@ -1,0 +1,27 @@
+"""An LHF selection as a Hub artifact: a dataset repo (selection.parquet + scores + config)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from lhf_hf.utils.hub import HubArtifact
+
+from .card import render_selection_card
+from .select import CONFIG_FILE, load_selection
+
+
+class SelectionArtifact(HubArtifact):
+    kind = "selection"
+    repo_type = "dataset"
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return (path / CONFIG_FILE).exists()
+
+    @classmethod
+    def check(cls, path: Path) -> None:
+        load_selection(path)
+
+    @classmethod
+    def card(cls, path: Path, repo_id: str) -> str:
+        return render_selection_card(path, repo_id)

@@ -1,0 +1,30 @@
+"""A learning-history dataset as a Hub artifact: a dataset repo tagged with the codebase version."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from lhf_hf import constants as C
+from lhf_hf.utils.hub import HubArtifact
+
+from .card import render_card
+from .reader import HistoryDataset
+
+
+class HistoriesArtifact(HubArtifact):
+    kind = "histories"
+    repo_type = "dataset"
+    # LeRobot's loaders resolve a dataset's codebase version through this git tag.
+    tag = C.CODEBASE_VERSION
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        return (path / C.INFO_PATH).exists()
+
+    @classmethod
+    def check(cls, path: Path) -> None:
+        HistoryDataset(path).data_files()
+
+    @classmethod
+    def card(cls, path: Path, repo_id: str) -> str:
+        return render_card(HistoryDataset(path), load_path=repo_id)

@@ -1,0 +1,48 @@
+"""A checkpoint of ``lhf train`` as a Hub artifact: a model repo (weights, config, provenance)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from transformers import AutoConfig
+
+from lhf_hf.modeling import load_model
+from lhf_hf.utils.hub import HubArtifact
+
+from .card import MODEL_EVALS_FILE, render_model_card
+from .trainer import TRAIN_CONFIG_FILE
+
+
+class CheckpointArtifact(HubArtifact):
+    kind = "checkpoint"
+    repo_type = "model"
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        if not (path / "config.json").exists():
+            return False
+        model_type = json.loads((path / "config.json").read_text()).get("model_type")
+        if model_type != "lhf_icrl":
+            raise ValueError(f"{path} holds a {model_type!r} model, not an lhf_icrl checkpoint")
+        return True
+
+    @classmethod
+    def check(cls, path: Path) -> None:
+        if not (path / "model.safetensors").exists():
+            raise ValueError(f"{path}: no weights (model.safetensors) to push")
+        if not (path / TRAIN_CONFIG_FILE).exists():
+            raise ValueError(
+                f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)"
+            )
+        load_model(str(path))
+
+    @classmethod
+    def card(cls, path: Path, repo_id: str) -> str:
+        evals = path / MODEL_EVALS_FILE
+        return render_model_card(
+            AutoConfig.from_pretrained(path),
+            json.loads((path / TRAIN_CONFIG_FILE).read_text()),
+            load_path=repo_id,
+            evaluations=json.loads(evals.read_text()) if evals.exists() else None,
+        )

@@ -1,0 +1,284 @@
+"""Hub access (DESIGN.md 4 and 8), knowing no artifact kind: repo ids, ``resolve`` (repo id -> local
+folder), provenance, and ``push_folder`` (a folder as ONE commit, plus an optional tag).
+
+``push_folder`` uploads a folder as one commit (the Hub applies a commit all-or-nothing, so a failed
+push leaves the repo as it was), with the card it is given, removes files the folder no longer has,
+and can move a git tag onto the new commit (LeRobot loaders resolve a dataset's codebase version
+through the tag ``v3.0``).  Each artifact (histories, selection, checkpoint) owns its card and its
+checks; ``lhf_hf.hub.push`` finds the artifact a folder holds and calls this.
+
+Reading goes through ``resolve``: a spec that is an existing local path is used as is; otherwise
+``ORG/NAME`` or ``ORG/NAME@REVISION`` is fetched with ``snapshot_download`` and parsed locally, so
+every reader (``load_histories``, ``load_selection``, ``load_model``) accepts both.  The endpoint,
+token and cache come from the usual ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HOME`` variables.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from lhf_hf import constants as C
+
+#: Never uploaded: Trainer's intermediate checkpoints (optimizer state), hidden and private files,
+#: half-written temporaries and the pickled TrainingArguments.
+_EXCLUDED_DIRS = re.compile(r"^(checkpoint-\d+|\..*|_.*|__pycache__)$")
+_EXCLUDED_FILES = re.compile(r"^(\..*|_.*|.*\.tmp|training_args\.bin)$")
+_REPO_REF = re.compile(r"^(?P<repo>[A-Za-z0-9][\w.\-]*/[\w.\-]+)(?:@(?P<rev>[^\s@]+))?$")
+
+
+class HubError(RuntimeError):
+    """A Hub operation failed; the message says what and how to fix it."""
+
+
+@dataclass(frozen=True)
+class HubRef:
+    """``ORG/NAME`` (and an optional revision: a branch, tag or commit)."""
+
+    repo_id: str
+    revision: str | None = None
+
+    def __str__(self) -> str:
+        return self.repo_id + (f"@{self.revision}" if self.revision else "")
+
+
+def parse_hub_ref(spec: str) -> HubRef | None:
+    """``"org/name"`` / ``"org/name@rev"`` -> ``HubRef``; ``None`` when ``spec`` is not of that shape
+    (a relative path such as ``data/x`` has the shape too: callers try the local path first)."""
+    m = _REPO_REF.match(str(spec))
+    if m is None or str(spec).startswith(("./", "../", "/", "~")):
+        return None
+    return HubRef(m["repo"], m["rev"])
+
+
+def validate_repo_id(repo_id: str) -> str:
+    from huggingface_hub.errors import HFValidationError
+    from huggingface_hub.utils import validate_repo_id as _validate
+
+    if parse_hub_ref(repo_id) is None or "@" in repo_id:
+        raise HubError(f"invalid repo id {repo_id!r}: expected ORG/NAME (letters, digits, - _ .)")
+    try:
+        _validate(repo_id)
+    except HFValidationError as exc:
+        raise HubError(f"invalid repo id {repo_id!r}: {exc}") from None
+    return repo_id
+
+
+def endpoint() -> str:
+    from huggingface_hub import constants
+
+    return constants.ENDPOINT
+
+
+# ---------------------------------------------------------------------------- read
+def is_hub_snapshot(path: Path) -> bool:
+    """True for a folder inside the huggingface_hub cache (read-only: never write into it)."""
+    return path.parent.name == "snapshots" and path.parent.parent.name.count("--") >= 2
+
+
+def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
+    """A local folder for ``spec``: the path itself when it exists, else a snapshot of the repo."""
+    p = Path(spec).expanduser()
+    if p.exists():
+        return p
+    ref = parse_hub_ref(str(spec))
+    if ref is None:
+        raise FileNotFoundError(
+            f"no {what} at {str(spec)!r}: neither an existing path nor a Hub repo id "
+            "(ORG/NAME[@REVISION])"
+        )
+    try:
+        return download(ref, repo_type)
+    except HubError as exc:
+        raise HubError(f"no {what} at {str(spec)!r} locally, and on the Hub: {exc}") from None
+
+
+def download(ref: HubRef, repo_type: str) -> Path:
+    """``snapshot_download`` with errors that say what is wrong."""
+    from huggingface_hub import snapshot_download
+    from huggingface_hub.errors import (
+        GatedRepoError,
+        HfHubHTTPError,
+        HFValidationError,
+        LocalEntryNotFoundError,
+        RepositoryNotFoundError,
+        RevisionNotFoundError,
+    )
+
+    where = f"{repo_type} repo {ref} on {endpoint()}"
+    try:
+        return Path(snapshot_download(ref.repo_id, repo_type=repo_type, revision=ref.revision))
+    except HFValidationError as exc:
+        raise HubError(f"invalid repo id {str(ref)!r}: {exc}") from None
+    except RevisionNotFoundError:
+        raise HubError(f"{where}: revision {ref.revision!r} does not exist") from None
+    except GatedRepoError:
+        raise HubError(f"{where} is gated: request access on the Hub, then log in") from None
+    except RepositoryNotFoundError:
+        raise HubError(
+            f"{where} does not exist (or is private: log in with `hf auth login` or set HF_TOKEN)"
+        ) from None
+    except LocalEntryNotFoundError as exc:
+        raise HubError(
+            f"{where}: cannot reach the Hub and it is not in the cache ({exc})"
+        ) from None
+    except HfHubHTTPError as exc:
+        raise HubError(f"{where}: {exc}") from None
+
+
+def source_of(spec: str | Path, path: Path) -> str:
+    """What to record as an artifact's origin: ``org/name@commit`` for a Hub snapshot, else the
+    absolute local path."""
+    path = Path(path)
+    if is_hub_snapshot(path) and not Path(spec).expanduser().exists():
+        ref = parse_hub_ref(str(spec))
+        if ref is not None:
+            return f"{ref.repo_id}@{path.name}"
+    return str(path.resolve())
+
+
+# ---------------------------------------------------------------------------- push
+def upload_files(root: Path) -> list[str]:
+    """Relative paths (posix) of the files ``push`` uploads from ``root``, sorted."""
+    out = []
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root)
+        if any(_EXCLUDED_DIRS.match(part) for part in rel.parts[:-1]):
+            continue
+        if p.is_file() and not _EXCLUDED_FILES.match(p.name):
+            out.append(rel.as_posix())
+    return out
+
+
+def _require_token(token: str | None) -> None:
+    from huggingface_hub import constants, get_token
+
+    if (
+        token is None
+        and get_token() is None
+        and constants.ENDPOINT.rstrip("/")
+        in (
+            "https://huggingface.co",
+            "https://hf.co",
+        )
+    ):
+        raise HubError(
+            "pushing to https://huggingface.co needs a write token: run `hf auth login`, set "
+            "HF_TOKEN, or pass --token"
+        )
+
+
+def push_folder(
+    path: Path,
+    repo_id: str,
+    *,
+    repo_type: str,
+    card: str,
+    what: str,
+    tag: str | None = None,
+    private: bool = False,
+    revision: str | None = None,
+    token: str | None = None,
+    commit_message: str | None = None,
+) -> dict:
+    """Upload ``path`` to ``repo_id`` (created if absent) as one commit, ``card`` as its README.md.
+
+    ``what`` names the artifact in messages; ``tag`` (if any) is moved onto the new commit.  Returns
+    ``{repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises ``HubError`` on
+    any failure (a success is only reported once the commit and the tag exist).
+    """
+    from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
+    from huggingface_hub.errors import HfHubHTTPError
+
+    validate_repo_id(repo_id)
+    _require_token(token)
+    branch = revision or "main"
+    files = upload_files(path)
+    ops = [CommitOperationAdd(f, str(path / f)) for f in files if f != C.CARD_PATH]
+    ops.append(CommitOperationAdd(C.CARD_PATH, card.encode()))
+    api = HfApi(token=token)
+    step = "create the repo"
+    try:
+        api.create_repo(repo_id, repo_type=repo_type, private=private, exist_ok=True)
+        if branch != "main":
+            step = f"create the branch {branch!r}"
+            api.create_branch(repo_id, branch=branch, repo_type=repo_type, exist_ok=True)
+        step = "list the files already there"
+        remote = set(api.list_repo_files(repo_id, repo_type=repo_type, revision=branch))
+        keep = {op.path_in_repo for op in ops} | {".gitattributes"}
+        ops += [CommitOperationDelete(f) for f in sorted(remote - keep)]
+        step = "commit"
+        info = api.create_commit(
+            repo_id,
+            ops,
+            commit_message=commit_message or f"lhf push: {what} from {path.name}",
+            repo_type=repo_type,
+            revision=branch,
+        )
+    except (HfHubHTTPError, OSError, ValueError, RuntimeError) as exc:
+        # Before the commit call returns, the repo is unchanged: the Hub applies a commit whole.
+        cause = f"{exc}; {exc.__cause__}" if exc.__cause__ else str(exc)
+        raise HubError(
+            f"push of {path} to {repo_type} repo {repo_id} on {endpoint()} failed at '{step}' "
+            f"(nothing was committed): {cause}"
+        ) from None
+    if tag is not None:
+        try:
+            refs = api.list_repo_refs(repo_id, repo_type=repo_type)
+            if any(t.name == tag for t in refs.tags):
+                api.delete_tag(repo_id, tag=tag, repo_type=repo_type)
+            api.create_tag(repo_id, tag=tag, revision=info.oid, repo_type=repo_type)
+        except HfHubHTTPError as exc:
+            raise HubError(
+                f"{path} was committed to {repo_id} ({info.oid[:12]}) but the {tag} tag could not be "
+                f"set, so LeRobot loaders will not find it: {exc}.  Run `lhf push` again."
+            ) from None
+    return {
+        "repo_id": repo_id,
+        "repo_type": repo_type,
+        "revision": branch,
+        "commit": info.oid,
+        "url": str(info.commit_url),
+        "uploaded": len(files) + (C.CARD_PATH not in files),
+        "deleted": len(ops) - len(files) - (C.CARD_PATH not in files),
+        "tag": tag,
+    }
+
+
+class HubArtifact:
+    """An artifact kind that travels by repo id (in the spirit of ``huggingface_hub.ModelHubMixin``).
+
+    Each kind subclasses this beside its format (``histories``, ``filtering``, ``training``) and says
+    how to recognise its folder, how to open it the way its readers will (a broken folder is never
+    pushed) and what card it carries; ``lhf_hf.hub.push`` only finds the kind and calls ``push``.
+    """
+
+    kind: str = ""
+    repo_type: str = ""
+    tag: str | None = None  # moved onto each pushed commit
+
+    @classmethod
+    def detect(cls, path: Path) -> bool:
+        raise NotImplementedError
+
+    @classmethod
+    def check(cls, path: Path) -> None:
+        raise NotImplementedError
+
+    @classmethod
+    def card(cls, path: Path, repo_id: str) -> str:
+        """The README.md the pushed artifact carries, with load snippets naming ``repo_id``."""
+        raise NotImplementedError
+
+    @classmethod
+    def push(cls, path: str | Path, repo_id: str, **kwargs) -> dict:
+        """Check, render the card, push as one commit: ``{kind, **push_folder's result}``."""
+        path = Path(path)
+        validate_repo_id(repo_id)
+        cls.check(path)
+        card = cls.card(path, repo_id)
+        out = push_folder(
+            path, repo_id, repo_type=cls.repo_type, card=card, what=cls.kind, tag=cls.tag, **kwargs
+        )
+        return {"kind": cls.kind, **out}

@@ -1,0 +1,105 @@
+"""The package's layering (DESIGN.md 1): a module imports only from lower layers (or its own package),
+and no function-level import of lhf_hf is needed to break a cycle: the few that remain carry a
+``# deferred: <reason>`` comment (a heavy or optional dependency)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "lhf_hf"
+
+#: lowest first; a module may import from a lower layer or from its own subpackage
+LAYERS = [
+    ["lhf_hf", "lhf_hf.constants"],  # column and file names
+    ["lhf_hf.utils"],  # atomic io, versions, Hub access (repo id -> folder, uploads), templates
+    ["lhf_hf.envs"],
+    ["lhf_hf.modeling"],
+    ["lhf_hf.configs"],
+    ["lhf_hf.histories"],  # the dataset format, its card and Hub artifact
+    ["lhf_hf.filtering"],  # LHF scores, selections (format, card, artifact)
+    ["lhf_hf.collection"],
+    ["lhf_hf.training"],
+    ["lhf_hf.evaluation"],
+    ["lhf_hf.hub", "lhf_hf.reproduce"],  # orchestration: push dispatch, paper experiments
+    ["lhf_hf.cli"],
+    ["lhf_hf.__main__"],
+]
+LAYER = {name: i for i, names in enumerate(LAYERS) for name in names}
+
+
+def _module(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _unit(module: str) -> str:
+    """The layered unit of a module: the longest LAYER key that is a prefix of it."""
+    parts = module.split(".")
+    for n in range(len(parts), 0, -1):
+        if ".".join(parts[:n]) in LAYER:
+            return ".".join(parts[:n])
+    raise AssertionError(f"{module} is in no layer: add it to LAYERS")
+
+
+def _imports(path: Path):
+    """(imported lhf_hf module, line, at module level?) for every import in ``path``."""
+    module = _module(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    tree = ast.parse(path.read_text())
+    top = {id(n) for n in tree.body}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(base + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            # `from lhf_hf import constants` imports the submodule lhf_hf.constants
+            names = [f"{base}.{a.name}" if base == "lhf_hf" else base for a in node.names]
+        else:
+            continue
+        for name in names:
+            if name == "lhf_hf" or name.startswith("lhf_hf."):
+                yield name, node.lineno, id(node) in top
+
+
+SOURCES = sorted(PACKAGE.rglob("*.py"))
+
+
+def test_every_module_is_in_a_layer():
+    for path in SOURCES:
+        _unit(_module(path))
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_go_down_the_layers(path):
+    me = _unit(_module(path))
+    lines = path.read_text().splitlines()
+    for name, line, at_top in _imports(path):
+        them = _unit(name)
+        if them != me:
+            assert LAYER[them] < LAYER[me], (
+                f"{path.name}:{line} imports {name} (layer {LAYER[them]}: {them}) from layer "
+                f"{LAYER[me]} ({me}): a back-edge"
+            )
+        if not at_top:
+            assert "# deferred:" in lines[line - 1], (
+                f"{path.name}:{line}: a function-level import of {name} without a "
+                "`# deferred: <reason>` comment (import it at the top: the layers have no cycle)"
+            )
+
+
+def test_the_layering_test_sees_a_back_edge(tmp_path):
+    """The checker itself: an envs module importing training is reported."""
+    bad = PACKAGE / "envs" / "_layering_probe.py"
+    bad.write_text("from lhf_hf.training import train\n")
+    try:
+        with pytest.raises(AssertionError, match="back-edge"):
+            test_imports_go_down_the_layers(bad)
+    finally:
+        bad.unlink()
