@@ -7,6 +7,8 @@
 # runs/reproduce: a second run only rewrites the report.  Extra arguments go to `lhf reproduce`
 # (e.g. ./scripts/demo.sh --runs 2).
 set -euo pipefail
+# LHF_VENV relative to where the command was run, not to the repository root
+if [ -n "${LHF_VENV:-}" ]; then LHF_VENV="$(realpath -m -- "$LHF_VENV")"; export LHF_VENV; fi
 cd "$(dirname "$0")/.."
 source scripts/_venv.sh "dev,metaworld,hub-test"
 echo "[lhf] environments"

@@ -6,6 +6,8 @@
 # (also LHF_NEWEST=1 ./scripts/test.sh):
 #   ./scripts/test.sh --newest
 set -euo pipefail
+# LHF_VENV relative to where the command was run, not to the repository root
+if [ -n "${LHF_VENV:-}" ]; then LHF_VENV="$(realpath -m -- "$LHF_VENV")"; export LHF_VENV; fi
 cd "$(dirname "$0")/.."
 if [ "${1:-}" = "--newest" ]; then
   export LHF_NEWEST=1

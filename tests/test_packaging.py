@@ -52,16 +52,20 @@ def test_specs_and_templates_are_found_inside_the_package():
 
 
 @pytest.mark.parametrize("newest", ["0", "1"])
-def test_venv_script_never_replaces_a_folder_that_is_not_a_venv(tmp_path, newest):
-    """scripts/_venv.sh rebuilds stale venvs by deleting them: only a folder with pyvenv.cfg."""
+@pytest.mark.parametrize("with_cfg", [False, True])
+def test_venv_script_never_replaces_a_folder_that_is_not_a_venv(tmp_path, newest, with_cfg):
+    """scripts/_venv.sh rebuilds stale venvs by deleting them: only a folder holding nothing but a
+    venv's own entries (a project with a pyvenv.cfg and files of its own stays)."""
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep")
+    if with_cfg:
+        (mine / "pyvenv.cfg").write_text("home = /usr/bin\n")
     r = subprocess.run(
         ["bash", "-c", f"source {REPO / 'scripts' / '_venv.sh'} dev"],
-        env={**os.environ, "LHF_VENV": str(mine), "LHF_NEWEST": newest},
+        env={**os.environ, "LHF_VENV": str(mine), "LHF_NEWEST": newest, "PYTHON": "python3.11"},
         capture_output=True,
         text=True,
     )
-    assert r.returncode != 0 and "is not a venv (no pyvenv.cfg): refusing" in r.stderr, r
+    assert r.returncode != 0 and "is not a venv this script made" in r.stderr, r
     assert (mine / "notes.txt").read_text() == "keep"
