@@ -92,7 +92,6 @@ def push(
     path = Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f"no artifact folder at {path}")
-    validate_repo_id(repo_id)
     return artifact_for(path).push(
         path,
         repo_id,

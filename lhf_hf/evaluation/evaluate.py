@@ -7,8 +7,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from transformers import AutoConfig
 
-import lhf_hf.modeling  # noqa: F401
 from lhf_hf.configs.evaluate import EvalConfig
 from lhf_hf.envs import get_spec, task_split
 from lhf_hf.modeling import load_model
@@ -50,7 +50,6 @@ def curve_summary(returns: np.ndarray) -> dict:
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
     to the checkpoint's card.  Returns the results dict."""
-
     model_dir = resolve(cfg.model, "model", "model checkpoint")
     model = load_model(str(model_dir))
     mc = model.config
@@ -142,8 +141,6 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
     }
     evals = [e for e in evals if e["out"] != summary["out"]] + [summary]
     write_json_atomic(evals, evals_path)
-    from transformers import AutoConfig
-
     write_model_card(
         model_dir, AutoConfig.from_pretrained(model_dir), json.loads(prov_path.read_text()), evals
     )

@@ -67,7 +67,6 @@ def materialize(
 
     Every task keeps its number of histories; the card says how the dataset was derived.
     """
-
     _check_source(ds, selection)
     counts = selection.counts()
     hist = ds.histories.to_pandas()

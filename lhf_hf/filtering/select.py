@@ -258,7 +258,6 @@ class Selection:
 def load_selection(path: str | Path) -> Selection:
     """Read a selection folder written by ``Selection.save`` / ``lhf filter``, or a Hub dataset repo
     ``ORG/NAME[@REVISION]`` that holds one (pushed with ``lhf push``)."""
-
     path = resolve(path, "dataset", "selection")
     for f in (SCORES_FILE, CONFIG_FILE):
         if not (path / f).exists():

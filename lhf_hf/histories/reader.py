@@ -194,7 +194,6 @@ class HistoryDataset:
 def load_histories(path: str | Path) -> HistoryDataset:
     """Open a learning-history dataset (LeRobot v3.0 layout + lhf tables): a local folder, or a Hub
     dataset repo ``ORG/NAME[@REVISION]`` (fetched with ``snapshot_download``, then read locally)."""
-
     root = resolve(path, "dataset", "dataset")
     try:
         ds = HistoryDataset(root)

@@ -207,7 +207,6 @@ def finalize(
 
     Returns the loaded ``HistoryDataset``.
     """
-
     root = Path(root)
     frames_per_task = histories * steps
     missing = [p for p in range(len(tasks)) if not task_done(root, p, frames_per_task)]

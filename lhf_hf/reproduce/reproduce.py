@@ -42,7 +42,6 @@ def _arms(exp: Experiment) -> list[tuple[str, dict]]:
 def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
     """Every stage of ``exp`` in run order (their folders under ``work``), and
     ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``."""
-
     stages: list[Stage] = []
     evals: dict[tuple[str, str, str], list[Stage]] = {}
     collect_cfg = {k: v for k, v in exp.collect.items() if k != "half"}
@@ -127,7 +126,6 @@ def reproduce(
     echo=print,
 ) -> Path:
     """Run experiment ``name`` at ``preset``; returns the path of ``report.md``."""
-
     exp = load_experiment(name, preset, runs)
     out = Path(out or f"results/{exp.name}-{preset}")
     work = Path(work)

@@ -1,2 +1,2 @@
 """The bottom layer: atomic file io, library versions, Hub access (repo id -> local folder, one-commit
-uploads), card templates.  Imports nothing else from lhf_hf (tests/test_layering.py)."""
+uploads), card templates.  Imports only ``lhf_hf.constants`` (tests/test_layering.py)."""

@@ -16,6 +16,7 @@ token and cache come from the usual ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HOME``
 from __future__ import annotations
 
 import re
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -184,14 +185,13 @@ def push_folder(
 ) -> dict:
     """Upload ``path`` to ``repo_id`` (created if absent) as one commit, ``card`` as its README.md.
 
-    ``what`` names the artifact in messages; ``tag`` (if any) is moved onto the new commit.  Returns
+    ``repo_id`` must be valid (``validate_repo_id``); ``what`` names the artifact in messages; ``tag`` (if any) is moved onto the new commit.  Returns
     ``{repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises ``HubError`` on
     any failure (a success is only reported once the commit and the tag exist).
     """
     from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
     from huggingface_hub.errors import HfHubHTTPError
 
-    validate_repo_id(repo_id)
     _require_token(token)
     branch = revision or "main"
     files = upload_files(path)
@@ -246,7 +246,7 @@ def push_folder(
     }
 
 
-class HubArtifact:
+class HubArtifact(ABC):
     """An artifact kind that travels by repo id (in the spirit of ``huggingface_hub.ModelHubMixin``).
 
     Each kind subclasses this beside its format (``histories``, ``filtering``, ``training``) and says
@@ -259,17 +259,19 @@ class HubArtifact:
     tag: str | None = None  # moved onto each pushed commit
 
     @classmethod
+    @abstractmethod
     def detect(cls, path: Path) -> bool:
-        raise NotImplementedError
+        """True when ``path`` holds this kind (its marker files)."""
 
     @classmethod
+    @abstractmethod
     def check(cls, path: Path) -> None:
-        raise NotImplementedError
+        """Open ``path`` the way its readers will; raise when it is broken or unfinished."""
 
     @classmethod
+    @abstractmethod
     def card(cls, path: Path, repo_id: str) -> str:
         """The README.md the pushed artifact carries, with load snippets naming ``repo_id``."""
-        raise NotImplementedError
 
     @classmethod
     def push(cls, path: str | Path, repo_id: str, **kwargs) -> dict:
