@@ -6,7 +6,7 @@ calls, hooks, ``DynamicCache`` concatenations and wrappers (profiled: ~58 module
 step).  This class runs the same arithmetic from the same ``LlamaModel``'s weights in ~25 array ops
 per layer, in **numpy**: on arrays this small an op is pure dispatch overhead, ~1 us in numpy against
 ~3-4 us through torch's dispatcher (measured: a 4-layer paper-size AD step 0.37 ms in numpy vs
-1.13 ms with the same ops in torch, session 6).  The arithmetic:
+1.13 ms with the same ops in torch).  The arithmetic:
 
 - RMSNorm's formula with its weight folded into the next matmul, ``W diag(w)``;
 - one matmul for queries, keys, values *and* their RoPE partners: ``rotate_half(W x)`` equals

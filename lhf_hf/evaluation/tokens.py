@@ -3,7 +3,7 @@
 
 Why: the model's embedders build their features with ~25 small torch ops (one-hot encodings, masks,
 casts, a concatenation); for 8 tasks and one token that is ~0.25 ms of dispatch per step, a fifth of
-an AD rollout step once the decoder is lean (profiled, session 6).  Here the same feature vector is
+an AD rollout step once the decoder is lean (profiled).  Here the same feature vector is
 written into one preallocated array by index and multiplied by the same weights.  The feature layout
 is the model's (``modeling_icrl.py`` module docstring); the test pins the two to each other for
 integer and real-valued states, discrete and continuous actions.

@@ -86,7 +86,7 @@ inline vf vrsqrt(vf x) {
 // on [0, 9] by scripts/fit_tanh.py (fit error 7e-9).  Evaluated in
 // float it is within 3.6e-7 (relative) of tanh for every float (tested); the result is clamped to
 // [-1, 1] since rounding can lift it 2 ulps above 1.  ~17 vector ops: the former polynomial + exp
-// form (~38) was ~16% of an update (BENCHMARKS.md, session 8).
+// form (~38) was ~16% of an update (BENCHMARKS.md, "Batched PPO collector").
 inline vf vtanh(vf x) {
   vf c = x < 9.f ? x : vset(9.f);
   c = c > -9.f ? c : vset(-9.f);
