@@ -103,3 +103,23 @@ def test_the_layering_test_sees_a_back_edge(tmp_path):
             test_imports_go_down_the_layers(bad)
     finally:
         bad.unlink()
+
+
+def test_no_env_knowledge_outside_envs():
+    """Everything the code asks about an environment is on its ``EnvSpec``: outside ``lhf_hf/envs``
+    nothing reads ``spec.family`` or compares with an env id or family name."""
+    from lhf_hf.envs import get_spec, list_env_ids
+
+    names = set(list_env_ids()) | {get_spec(e).family for e in list_env_ids()}
+    found = []
+    for path in SOURCES:
+        if path.is_relative_to(PACKAGE / "envs"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr == "family":
+                found.append(f"{path.name}:{node.lineno} reads .family")
+            if isinstance(node, ast.Compare):
+                for operand in [node.left, *node.comparators]:
+                    if isinstance(operand, ast.Constant) and operand.value in names:
+                        found.append(f"{path.name}:{node.lineno} compares with {operand.value!r}")
+    assert not found, found

@@ -124,7 +124,7 @@ def collect_chunk(
         t = torch.from_numpy(x if dtype is None else x.astype(dtype))
         return t.to(device)
 
-    obs = core.reset()  # (L*E, 2)
+    obs = core.reset()  # (L*E, S)
     episode_start = torch.ones(L, E, dtype=torch.bool, **kw)
     bar = tqdm(
         total=steps,
@@ -225,20 +225,21 @@ def _random_streams(
     config: CollectConfig, tasks: list[int], n: int, rng: np.random.Generator
 ) -> dict:
     """The noisy protocol's uniform random histories: (tasks, n, steps, ...) arrays."""
+    spec = get_spec(config.env_id)
     core = make_batched(config.env_id, np.repeat(np.asarray(tasks), n))
-    B, steps = core.num_envs, config.steps
+    B, steps, S = core.num_envs, config.steps, spec.state_space.shape[0]
     arrays = {
-        "obs": np.zeros((B, steps, 2), np.int64),
+        "obs": np.zeros((B, steps, S), np.int64),
         "actions": np.zeros((B, steps), np.int64),
         "rewards": np.zeros((B, steps), np.float32),
-        "next_obs": np.zeros((B, steps, 2), np.int64),
+        "next_obs": np.zeros((B, steps, S), np.int64),
         "dones": np.zeros((B, steps), bool),
         "optimal_actions": np.zeros((B, steps), np.int64),
     }
     obs = core.reset()
     for t in range(steps):
         arrays["optimal_actions"][:, t] = core.optimal_action()
-        a = rng.integers(0, 5, B)
+        a = rng.integers(0, spec.action_space.n, B)
         nxt, r, d = core.step(a)
         arrays["obs"][:, t], arrays["actions"][:, t], arrays["rewards"][:, t] = obs, a, r
         arrays["next_obs"][:, t], arrays["dones"][:, t] = nxt, d

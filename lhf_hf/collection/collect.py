@@ -92,7 +92,7 @@ class _Progress:
 
 def lhf_metadata(config: CollectConfig) -> dict:
     spec = get_spec(config.env_id)
-    extra = ["metaworld", "mujoco"] if spec.family == "metaworld" else []
+    extra = list(spec.extra_packages)
     return {
         "collect": config.identity(),
         "tasks": list(config.tasks),
@@ -234,11 +234,8 @@ def collect(
     ranks.barrier()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]
-    feature_names = (
-        {C.OBS: ["row", "col"], C.NEXT_OBS: ["row", "col"]}
-        if get_spec(config.env_id).family == "gridworld"
-        else None
-    )
+    names = get_spec(config.env_id).state_names
+    feature_names = {C.OBS: list(names), C.NEXT_OBS: list(names)} if names else None
     return finalize(
         out,
         env_id=config.env_id,

@@ -64,7 +64,7 @@ def _vec_env(config: CollectConfig, task: int, n: int, seed: int) -> RecordingVe
     venv = DummyVecEnv([factory] * n)
     venv.seed(seed)
     return RecordingVecEnv(
-        venv, config.steps, record_optimal=get_spec(config.env_id).family == "gridworld"
+        venv, config.steps, record_optimal=get_spec(config.env_id).has_optimal_action
     )
 
 

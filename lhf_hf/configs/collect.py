@@ -70,20 +70,10 @@ class SACSettings:
             )
 
 
-#: (n_steps, batch_size, n_epochs) per env id, or per family as a fallback (DESIGN.md section 3).
-PPO_PRESETS: dict[str, PPOSettings] = {
-    "darkroom": PPOSettings(n_steps=20, batch_size=50, n_epochs=20),
-    "darkroom-permuted": PPOSettings(n_steps=50, batch_size=50, n_epochs=20),
-    "darkroom-large": PPOSettings(n_steps=50, batch_size=50, n_epochs=20),
-    "dark-key-to-door": PPOSettings(n_steps=50, batch_size=100, n_epochs=10),
-    "metaworld": PPOSettings(n_steps=100, batch_size=200, n_epochs=20),
-}
-
-
 def ppo_preset(env_id: str) -> PPOSettings:
-    """The paper's PPO settings for ``env_id`` (by id, else by family)."""
-    spec = get_spec(env_id)
-    return PPO_PRESETS.get(env_id) or PPO_PRESETS[spec.family]
+    """The paper's PPO settings for ``env_id`` (its ``EnvSpec.ppo``, DESIGN.md section 3)."""
+    n_steps, batch_size, n_epochs = get_spec(env_id).ppo
+    return PPOSettings(n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs)
 
 
 def parse_tasks(
@@ -235,9 +225,10 @@ class CollectConfig:
                 f"CollectConfig.ppo_backend='kernel' runs on the CPU; device={self.device!r} needs 'torch'"
             )
         if self.collector == "batched":
-            if spec.family != "gridworld" or self.algo != "ppo":
+            if spec.batched is None or self.algo != "ppo":
                 raise ValueError(
-                    f"CollectConfig.collector='batched' runs PPO on gridworlds only, got "
+                    f"CollectConfig.collector='batched' runs PPO on envs with a batched core "
+                    f"(the gridworlds only), got "
                     f"{self.env_id} with {self.algo}; use collector='sb3'"
                 )
             if self.tasks_per_chunk is None:

@@ -13,7 +13,7 @@ from functools import partial
 import gymnasium as gym
 import numpy as np
 
-from .gridworld_core import NUM_ACTIONS, GridworldVariant, TaskParams
+from .gridworld_core import NUM_ACTIONS, BatchedGridworld, GridworldVariant, TaskParams
 from .gridworld_env import GridworldEnv
 from .registry import EnvSpec, register, shuffled_split
 
@@ -113,6 +113,18 @@ def _make_gridworld(
 # Model context (transitions) and DICP planning depth of the reference code (DESIGN.md 6, 7).
 _CONTEXT_LENGTH = {"darkroom": 80}
 _PLAN_HORIZON = {"darkroom": 8}
+# The paper's PPO (n_steps, batch_size, n_epochs) per gridworld (DESIGN.md 3).
+_PPO = {
+    "darkroom": (20, 50, 20),
+    "darkroom-permuted": (50, 50, 20),
+    "darkroom-large": (50, 50, 20),
+    "dark-key-to-door": (50, 100, 10),
+}
+
+
+def _describe(variant: GridworldVariant, task: int, split_seed: int) -> dict:
+    del split_seed  # gridworld tasks are global
+    return variant.describe_task(task)
 
 
 def _register(variant: GridworldVariant) -> None:
@@ -132,6 +144,11 @@ def _register(variant: GridworldVariant) -> None:
             optimal_returns=variant.optimal_returns,
             context_length=_CONTEXT_LENGTH.get(variant.name, 200),
             plan_horizon=_PLAN_HORIZON.get(variant.name, 16),
+            ppo=_PPO[variant.name],
+            batched=partial(BatchedGridworld, variant),
+            has_optimal_action=True,
+            describe_task=partial(_describe, variant),
+            state_names=("row", "col"),
         )
     )
 

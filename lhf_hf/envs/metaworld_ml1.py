@@ -144,6 +144,11 @@ def _make(task_name: str, task: int, split_seed: int, **kwargs) -> MetaWorldML1E
     return MetaWorldML1Env(task_name, task, split_seed=split_seed, **kwargs)
 
 
+def _describe(task: int, split_seed: int) -> dict:
+    # the goal vector needs the env built: 100 Meta-World envs only for it is not worth it here
+    return {"ml1_task_index": int(task), "split_seed": int(split_seed)}
+
+
 def _split(seed: int) -> tuple[list[int], list[int]]:
     del seed  # the ML1 seed (passed to make) draws the goals; indices are fixed 50/50
     return list(range(NUM_GOALS)), list(range(NUM_GOALS, 2 * NUM_GOALS))
@@ -165,5 +170,9 @@ for _name in ML1_TASKS:
             seeded_tasks=True,
             extra="metaworld",
             context_length=1000,  # (ref) ten episodes of 100 steps
+            ppo=(100, 200, 20),  # DESIGN.md 3
+            describe_task=_describe,
+            extra_packages=("metaworld", "mujoco"),
+            reports_success=True,
         )
     )

@@ -12,14 +12,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .gridworld_core import BatchedGridworld
-from .gridworlds import GRIDWORLD_VARIANTS
 from .registry import get_spec, make
 
 
 def gridworld_oracle_returns(env_id: str, tasks: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
     """One oracle episode per task on the batched core: (returns (B,), optimal returns (B,))."""
-    core = BatchedGridworld(GRIDWORLD_VARIANTS[env_id], tasks)
+    core = get_spec(env_id).batched(tasks)
     core.reset()
     total = np.zeros(core.num_envs, dtype=np.float64)
     for _ in range(core.horizon):
@@ -67,7 +65,7 @@ def oracle_report(env_id: str, split_seed: int = 0, max_tasks: int | None = None
     spec = get_spec(env_id)
     _, test = spec.split(split_seed)
     tasks = test[:max_tasks] if max_tasks else test
-    if spec.family == "gridworld":
+    if spec.batched is not None and spec.has_optimal_action:
         returns, optimal = gridworld_oracle_returns(env_id, tasks)
         return {
             "env_id": env_id,

@@ -7,8 +7,9 @@ Adding an environment means registering a spec here-by-import (see ``gridworlds.
 from __future__ import annotations
 
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -19,7 +20,8 @@ class EnvSpec:
     """Everything the rest of lhf_hf needs to know about one environment id.
 
     env_id: registry key, e.g. ``darkroom`` or ``metaworld-reach``.
-    family: ``gridworld`` or ``metaworld``.
+    family: a label for ``lhf envs`` (``gridworld``, ``metaworld``, ...); no code branches on it: what
+        differs between envs is in the fields below.
     description: one line for ``lhf envs``.
     horizon: episode length in steps (episodes end only there).
     num_tasks: number of task indices accepted by ``make``.
@@ -38,6 +40,17 @@ class EnvSpec:
         200, Meta-World 1000 (DESIGN.md 6).
     plan_horizon: DICP beam-search depth *(ref)*: darkroom 8, the other gridworlds 16 (DESIGN.md 7;
         Meta-World plans greedily one step ahead and ignores it).
+    ppo: the paper's PPO ``(n_steps, batch_size, n_epochs)`` for this env (DESIGN.md 3).
+    batched: ``batched(tasks) -> core``: a numpy core stepping one copy per task at once (``reset``,
+        ``step``, ``optimal_action``; see ``BatchedGridworld``), or None.  With it the batched PPO
+        collector and lockstep evaluation run on this env; without it, one gymnasium env per task.
+    has_optimal_action: the env exposes the oracle's action (``env.unwrapped.optimal_action()``):
+        DPT's labels and the ``action.optimal`` column are recorded.
+    describe_task: ``describe_task(task, split_seed) -> dict``: the task's parameters, JSON-ready,
+        for ``meta/tasks.parquet``.
+    state_names: names of the state coordinates (dataset features), or None.
+    extra_packages: packages of the optional extra whose versions a dataset records.
+    reports_success: episodes report ``info["success"]`` (Meta-World): evaluation records success.
     """
 
     env_id: str
@@ -55,15 +68,24 @@ class EnvSpec:
     extra: str | None = None
     context_length: int = 200
     plan_horizon: int = 16
+    ppo: tuple[int, int, int] = (100, 200, 20)
+    batched: Callable[[Sequence[int]], Any] | None = field(default=None, repr=False)
+    has_optimal_action: bool = False
+    describe_task: Callable[[int, int], dict] | None = field(default=None, repr=False)
+    state_names: tuple[str, ...] | None = None
+    extra_packages: tuple[str, ...] = ()
+    reports_success: bool = False
 
     def __post_init__(self) -> None:
         if not self.env_id or self.env_id != self.env_id.strip().lower():
             raise ValueError(
                 f"EnvSpec.env_id must be a non-empty lower-case id, got {self.env_id!r}"
             )
-        if self.family not in ("gridworld", "metaworld"):
+        if not self.family:
+            raise ValueError("EnvSpec.family must be a non-empty label")
+        if len(self.ppo) != 3 or min(self.ppo) < 1:
             raise ValueError(
-                f"EnvSpec.family must be 'gridworld' or 'metaworld', got {self.family!r}"
+                f"EnvSpec.ppo must be (n_steps, batch_size, n_epochs) >= 1, got {self.ppo!r}"
             )
         if self.horizon < 1:
             raise ValueError(f"EnvSpec.horizon must be >= 1, got {self.horizon!r}")
@@ -94,6 +116,12 @@ class EnvSpec:
                 f"{self.env_id}: task index {task} out of range; valid tasks are 0..{self.num_tasks - 1}"
             )
         return int(task)
+
+    def task_params(self, task: int, split_seed: int) -> dict:
+        """The parameters of ``task`` (``describe_task``), or its index and split seed."""
+        if self.describe_task is not None:
+            return self.describe_task(task, split_seed)
+        return {"task_index": int(task), "split_seed": int(split_seed)}
 
     def summary(self) -> dict:
         """A JSON-ready row for ``lhf envs``."""

@@ -5,10 +5,11 @@ from .context import Context
 from .evaluate import evaluate, load_model
 from .planning import beam_search, greedy_search
 from .rollout import RolloutResult, rollout, sample_actions
-from .task_batch import TASK_BATCHES, make_task_batch
+from .task_batch import BatchedTasks, GymTasks, make_task_batch
 
 __all__ = [
-    "TASK_BATCHES",
+    "BatchedTasks",
+    "GymTasks",
     "Context",
     "RolloutResult",
     "beam_search",

@@ -1,4 +1,5 @@
-"""A batch of test tasks stepped in lockstep for in-context evaluation (one registry per env family).
+"""A batch of test tasks stepped in lockstep for in-context evaluation: the env's batched core when
+its ``EnvSpec`` has one, else one gymnasium env per task.
 
 Every task of a batch has the same horizon, so episodes start and end together: ``step`` returns
 ``done`` for all tasks at once and ``reset`` starts the next episode everywhere.
@@ -6,15 +7,14 @@ Every task of a batch has the same horizon, so episodes start and end together: 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
+import gymnasium as gym
 import numpy as np
 
 from lhf_hf.envs import get_spec, make, make_batched
 
 
-class GridworldTasks:
-    """The batched numpy core (one copy per task)."""
+class BatchedTasks:
+    """The env's batched numpy core (one copy per task)."""
 
     def __init__(self, env_id: str, tasks: list[int], split_seed: int, seed: int):
         self.core = make_batched(env_id, tasks)
@@ -31,16 +31,19 @@ class GridworldTasks:
 
 
 class GymTasks:
-    """One gymnasium env per task (Meta-World ML1): continuous actions, clipped to the action box."""
+    """One gymnasium env per task (Meta-World ML1, any registered env without a batched core);
+    continuous actions are clipped to the action box."""
 
     def __init__(self, env_id: str, tasks: list[int], split_seed: int, seed: int):
         spec = get_spec(env_id)
         self.envs = [make(env_id, t, split_seed=split_seed) for t in tasks]
         self.horizon = spec.horizon
-        self.low, self.high = spec.action_space.low, spec.action_space.high
+        box = isinstance(spec.action_space, gym.spaces.Box)
+        self.low, self.high = (spec.action_space.low, spec.action_space.high) if box else (None, None)
+        self.state_dtype = spec.state_space.dtype
         self.seed = seed
         self.episode = 0
-        self.has_success = True
+        self.has_success = spec.reports_success
 
     def reset(self) -> np.ndarray:
         obs = [
@@ -48,14 +51,13 @@ class GymTasks:
             for i, env in enumerate(self.envs)
         ]
         self.episode += 1
-        return np.stack(obs).astype(np.float32)  # (B, S)
+        return np.stack(obs).astype(self.state_dtype)  # (B, S)
 
     def step(self, actions: np.ndarray):
-        out = [
-            env.step(np.clip(a, self.low, self.high))
-            for env, a in zip(self.envs, actions, strict=True)
-        ]
-        nxt = np.stack([o[0] for o in out]).astype(np.float32)
+        if self.low is not None:
+            actions = np.clip(actions, self.low, self.high)
+        out = [env.step(a) for env, a in zip(self.envs, actions, strict=True)]
+        nxt = np.stack([o[0] for o in out]).astype(self.state_dtype)
         reward = np.array([o[1] for o in out], np.float32)
         done = np.array([o[2] or o[3] for o in out])
         success = np.array([bool(o[4].get("success", False)) for o in out])
@@ -66,11 +68,6 @@ class GymTasks:
         return nxt, reward, done, success
 
 
-TASK_BATCHES: dict[str, Callable[..., object]] = {
-    "gridworld": GridworldTasks,
-    "metaworld": GymTasks,
-}
-
-
 def make_task_batch(env_id: str, tasks: list[int], split_seed: int, seed: int):
-    return TASK_BATCHES[get_spec(env_id).family](env_id, list(tasks), split_seed, seed)
+    kind = BatchedTasks if get_spec(env_id).batched is not None else GymTasks
+    return kind(env_id, list(tasks), split_seed, seed)

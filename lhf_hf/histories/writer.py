@@ -25,7 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lhf_hf import constants as C
-from lhf_hf.envs import GRIDWORLD_VARIANTS, get_spec
+from lhf_hf.envs import get_spec
 from lhf_hf.utils.io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
 
 from .card import write_card
@@ -231,10 +231,7 @@ def finalize(
     rows = []
 
     for t in tasks:
-        if env_id in GRIDWORLD_VARIANTS:
-            params = GRIDWORLD_VARIANTS[env_id].describe_task(t)
-        else:  # building 100 Meta-World envs only for their goal vectors is not worth it here
-            params = {"ml1_task_index": t, "split_seed": split_seed}
+        params = spec.task_params(t, split_seed)
         readable = ", ".join(
             f"{k}={tuple(v) if isinstance(v, list) else v}" for k, v in params.items()
         )

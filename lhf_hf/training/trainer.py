@@ -125,7 +125,7 @@ class _Throughput(TrainerCallback):
 def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
     """The ICRLConfig that ``cfg`` trains on env ``spec`` (spaces, context, planning from the env)."""
     if cfg.objective == "dpt":
-        if spec.family != "gridworld" or not has_optimal:
+        if not spec.has_optimal_action or not has_optimal:
             raise ValueError(
                 f"DPT needs the oracle's optimal action of every state (column {C.OPTIMAL_ACTION}); "
                 f"the {spec.env_id} dataset has none (the paper runs DPT on the gridworlds only)"

@@ -99,5 +99,8 @@ def test_spec_validation():
     spec = get_spec("darkroom")
     with pytest.raises(ValueError, match="num_train_tasks"):
         EnvSpec(**{**spec.__dict__, "num_train_tasks": 81})
+    # family is a label (a new env brings its own); it may not be empty
     with pytest.raises(ValueError, match="family"):
-        EnvSpec(**{**spec.__dict__, "family": "atari"})
+        EnvSpec(**{**spec.__dict__, "family": ""})
+    with pytest.raises(ValueError, match="ppo"):
+        EnvSpec(**{**spec.__dict__, "ppo": (20, 0, 20)})
