@@ -50,3 +50,6 @@ PARTS_DIR = "meta/.parts"  # per-task episode/history rows, assembled at finaliz
 CONFIG_PATH = "meta/lhf_config.json"  # written first: identifies an unfinished collection
 CURVE_PATH = "meta/learning_curve.png"
 CARD_PATH = "README.md"
+
+#: The ICRL objectives (backbones of the paper), named once for configs, models and experiments.
+OBJECTIVES = ("ad", "dpt", "dicp")

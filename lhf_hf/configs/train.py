@@ -6,11 +6,11 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from lhf_hf.constants import OBJECTIVES
 from lhf_hf.utils.hub import validate_repo_id
 
-# Mirrors lhf_hf.modeling (kept here so that configs import without transformers; a test checks
-# that both agree).
-OBJECTIVES = ("ad", "dpt", "dicp")
+# Mirrors lhf_hf.modeling.PRESETS (kept here so that configs import without transformers; a test
+# checks that both agree).
 MODEL_PRESETS = ("paper", "lightweight", "tiny")
 
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 from huggingface_hub.dataclasses import strict
 from transformers import LlamaConfig
 
-OBJECTIVES = ("ad", "dpt", "dicp")
+from lhf_hf.constants import OBJECTIVES
+
 LABEL_POSITIONS = ("all", "query")
 
 # Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import yaml
 
+from lhf_hf.constants import OBJECTIVES
 from lhf_hf.envs import get_spec
 
 #: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
 EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
 PRESETS = ("quick", "cpu", "paper")
-OBJECTIVES = ("ad", "dpt", "dicp")
 
 #: Defaults of every stage; a spec's top level, then its preset, override them.
 DEFAULTS: dict = {
