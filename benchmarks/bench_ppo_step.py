@@ -23,7 +23,8 @@ import time
 
 import torch
 
-from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer, ppo_update
+from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer
+from lhf_hf.collection.ppo_backends import ppo_update
 
 DEVICE = torch.device("cpu")  # set from --device
 

@@ -1,5 +1,7 @@
 """Column names, file names and format versions: spelled out here and nowhere else (DESIGN.md 4)."""
 
+from typing import Literal, get_args
+
 # ---- frames (one row per transition), LeRobot v3.0 names plus the lhf extension
 OBS = "observation.state"
 ACTION = "action"
@@ -52,4 +54,5 @@ CURVE_PATH = "meta/learning_curve.png"
 CARD_PATH = "README.md"
 
 #: The ICRL objectives (backbones of the paper), named once for configs, models and experiments.
-OBJECTIVES = ("ad", "dpt", "dicp")
+Objective = Literal["ad", "dpt", "dicp"]
+OBJECTIVES: tuple[str, ...] = get_args(Objective)

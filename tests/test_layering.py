@@ -16,8 +16,8 @@ LAYERS = [
     ["lhf_hf", "lhf_hf.constants"],  # column and file names
     ["lhf_hf.utils"],  # atomic io, versions, Hub access (repo id -> folder, uploads), templates
     ["lhf_hf.envs"],
+    ["lhf_hf.configs"],  # validated config dataclasses, model presets and field rules (no torch)
     ["lhf_hf.modeling"],
-    ["lhf_hf.configs"],
     ["lhf_hf.histories"],  # the dataset format, its card and Hub artifact
     ["lhf_hf.filtering"],  # LHF scores, selections (format, card, artifact)
     ["lhf_hf.collection"],

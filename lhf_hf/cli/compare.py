@@ -4,23 +4,25 @@ from __future__ import annotations
 
 import argparse
 
+from lhf_hf.configs.commands import CompareOptions
+
 from .evaluate import COMPARE_HELP
+from .flags import add_params, values
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("compare", help=COMPARE_HELP, description=COMPARE_HELP)
-    p.add_argument("--baseline", nargs="+", required=True, help="evaluation folders without LHF")
-    p.add_argument("--lhf", nargs="+", required=True, help="evaluation folders with LHF")
-    p.add_argument("--out", default=None, help="folder for compare.md / compare.json / compare.png")
-    p.set_defaults(func=run)
+    fields = add_params(p, CompareOptions)
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.evaluation import compare  # deferred: heavy
+    from lhf_hf.evaluation import compare  # deferred: heavy (torch, matplotlib)
 
-    r = compare(args.baseline, args.lhf, args.out)
+    options = CompareOptions(**values(args, args.fields))
+    r = compare(options.baseline, options.lhf, options.out)
     print(r["table"])
-    if args.out:
-        print(f"\ntable: {args.out}/compare.md  figure: {args.out}/compare.png")
+    if options.out:
+        print(f"\ntable: {options.out}/compare.md  figure: {options.out}/compare.png")
     return 0

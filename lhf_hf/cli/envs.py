@@ -6,26 +6,17 @@ import argparse
 import json
 import sys
 
+from lhf_hf.configs.commands import EnvsOptions
+
+from .flags import add_params, values
+
 HELP = "list environments (id, horizon, tasks, split sizes, spaces, optimal returns)"
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("envs", help=HELP, description=HELP)
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument(
-        "--oracle",
-        action="store_true",
-        help="also roll out the oracle on each env's test tasks (gridworlds: exact oracle; "
-        "Meta-World: scripted policy with the goal revealed)",
-    )
-    p.add_argument("--split-seed", type=int, default=0, help="split seed for --oracle (default 0)")
-    p.add_argument(
-        "--metaworld-tasks",
-        type=int,
-        default=2,
-        help="test tasks per Meta-World env for --oracle (default 2; each takes ~1 s)",
-    )
-    p.set_defaults(func=run)
+    fields = add_params(p, EnvsOptions)
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
@@ -106,8 +97,9 @@ def _format_table(rows: list[dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    rows = collect(args.oracle, args.split_seed, args.metaworld_tasks)
-    if args.json:
+    o = EnvsOptions(**values(args, args.fields))
+    rows = collect(o.oracle, o.split_seed, o.metaworld_tasks)
+    if o.json:
         json.dump(rows, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:

@@ -5,6 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from lhf_hf.configs import FilterConfig
+from lhf_hf.configs.commands import FilterInputs, OutputOptions
+
+from .flags import add_params, values
+
 HELP = (
     "filter a history dataset with LHF: write a selection (and optionally a materialised dataset)"
 )
@@ -12,57 +17,27 @@ HELP = (
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("filter", help=HELP, description=HELP)
-    p.add_argument("dataset", help="history dataset folder or Hub dataset repo ORG/NAME[@REV]")
-    p.add_argument(
-        "--out", required=True, help="selection folder (selection.parquet, filter_config.json, PNG)"
-    )
-    p.add_argument(
-        "--strategy", default="linear", choices=["linear", "softmax", "none", "top-fraction"]
-    )
-    p.add_argument(
-        "--lam", type=float, default=1.0, help="lambda: weight of Stability in U (default 1)"
-    )
-    p.add_argument("--alpha", type=float, default=0.125, help="softmax temperature (default 0.125)")
-    p.add_argument(
-        "--fraction", type=float, default=0.5, help="kept share for --strategy top-fraction"
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the acceptance draws")
-    p.add_argument(
-        "--r-max",
-        type=float,
-        default=None,
-        help="maximal return (default: the env's optimum per task)",
-    )
-    p.add_argument("--scan-order", default="descending", choices=["descending", "dataset"])
-    p.add_argument(
-        "--materialize",
-        metavar="OUT_DATASET",
-        default=None,
-        help="also write the selected histories (with repeats) as a dataset",
-    )
-    p.add_argument(
-        "--overwrite", action="store_true", help="replace an existing selection / dataset"
-    )
-    p.set_defaults(func=run)
+    inputs = add_params(p, FilterInputs, positional=("dataset",))
+    config = add_params(p, FilterConfig)
+    output = add_params(p, OutputOptions, skip=("resume",))
+    p.set_defaults(func=run, inputs=inputs, config=config, output=output)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.configs import FilterConfig  # deferred: heavy
-    from lhf_hf.filtering.run import run_filter  # deferred: heavy
+    from lhf_hf.filtering.run import run_filter  # deferred: heavy (datasets)
 
-    config = FilterConfig(
-        strategy=args.strategy,
-        lam=args.lam,
-        alpha=args.alpha,
-        fraction=args.fraction,
-        seed=args.seed,
-        r_max=args.r_max,
-        scan_order=args.scan_order,
-    )
+    inputs = FilterInputs(**values(args, args.inputs))
+    config = FilterConfig(**values(args, args.config))
+    output = OutputOptions(**values(args, args.output))
     summary = run_filter(
-        args.dataset, args.out, config, materialize_to=args.materialize, overwrite=args.overwrite
+        inputs.dataset,
+        output.out,
+        config,
+        materialize=inputs.materialize,
+        overwrite=output.overwrite,
+        progress=output.progress,
     )
     print(json.dumps(summary, indent=2))
-    print(f"selection: {args.out}/selection.parquet  plot: {args.out}/selection.png")
+    print(f"selection: {output.out}/selection.parquet  plot: {output.out}/selection.png")
     return 0

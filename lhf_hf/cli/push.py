@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 
+from lhf_hf.configs.commands import PushOptions
+
+from .flags import add_params, values
+
 HELP = "push a history dataset, LHF selection or model checkpoint folder to a Hugging Face Hub repo"
 
 
@@ -16,29 +20,25 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         + ".  One commit (all or nothing), with a card naming the repo; history datasets get the "
         "v3.0 tag.  The endpoint and token come from HF_ENDPOINT / HF_TOKEN (or `hf auth login`).",
     )
-    p.add_argument("path", help="artifact folder (lhf collect / filter / train output)")
-    p.add_argument("--repo-id", required=True, metavar="ORG/NAME", help="target repo (created)")
-    p.add_argument("--private", action="store_true", help="create the repo private")
-    p.add_argument("--revision", default=None, help="branch to commit to (created; default main)")
-    p.add_argument("--token", default=None, help="write token (default: the logged-in one)")
-    p.add_argument("--message", default=None, help="commit message")
-    p.set_defaults(func=run)
+    fields = add_params(p, PushOptions, positional=("path",))
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.hub import push  # deferred: heavy
+    from lhf_hf.hub import push  # deferred: heavy (every artifact kind: datasets, transformers)
 
+    options = PushOptions(**values(args, args.fields))
     result = push(
-        args.path,
-        args.repo_id,
-        private=args.private,
-        revision=args.revision,
-        token=args.token,
-        commit_message=args.message,
+        options.path,
+        options.repo_id,
+        private=options.private,
+        revision=options.revision,
+        token=options.token,
+        commit_message=options.message,
     )
     print(json.dumps(result, indent=2))
     print(
-        f"pushed {result['kind']} to {result['repo_type']} repo {args.repo_id} ({result['commit'][:12]})"
+        f"pushed {result['kind']} to {result['repo_type']} repo {options.repo_id} ({result['commit'][:12]})"
     )
     return 0

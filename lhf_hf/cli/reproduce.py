@@ -4,32 +4,27 @@ from __future__ import annotations
 
 import argparse
 
+from lhf_hf.configs.commands import ReproduceOptions
+
+from .flags import add_params, values
+
 HELP = "run a paper experiment end to end (collect, filter, train, evaluate, compare) to report.md"
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    from lhf_hf.reproduce import experiment_names  # deferred: heavy
-
     p = subparsers.add_parser(
         "reproduce",
         help=HELP,
         description=HELP + ".  Every stage is cached by its config's hash: a rerun resumes.",
     )
-    p.add_argument("experiment", help=f"one of {experiment_names()} or a yaml path")
-    p.add_argument("--preset", default="quick", choices=["quick", "cpu", "paper"])
-    p.add_argument(
-        "--runs", type=int, default=None, help="independent runs (default: the preset's)"
-    )
-    p.add_argument("--out", default=None, help="report folder (default results/EXPERIMENT-PRESET)")
-    p.add_argument(
-        "--work", default="runs/reproduce", help="stage cache: datasets, checkpoints, evaluations"
-    )
-    p.set_defaults(func=run)
+    fields = add_params(p, ReproduceOptions, positional=("experiment",))
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from lhf_hf.reproduce import reproduce  # deferred: heavy
+    from lhf_hf.reproduce import reproduce  # deferred: heavy (every stage's libraries)
 
-    reproduce(args.experiment, args.preset, args.runs, args.out, args.work)
+    o = ReproduceOptions(**values(args, args.fields))
+    reproduce(o.experiment, o.preset, o.runs, o.out, o.work)
     return 0

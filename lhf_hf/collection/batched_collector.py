@@ -24,7 +24,8 @@ from lhf_hf.envs import get_spec, make_batched
 from lhf_hf.histories.schema import TaskHistories
 
 from . import native
-from .batched_ppo import HIDDEN, Rollout, StackedPolicy, gae, make_optimizer, ppo_update
+from .batched_ppo import HIDDEN, Rollout, StackedPolicy, gae, make_optimizer
+from .ppo_backends import ppo_update
 
 logger = logging.getLogger(__name__)
 

@@ -10,21 +10,21 @@ bootstrap on time-limit truncation.  Learner l's weights are slice l of (L, in, 
 Adam is elementwise, so a stacked update is L independent SB3 updates (``tests/collection`` checks
 one update against SB3's own ``PPO.train``).
 
-Read top to bottom: ``StackedMLP`` -> ``StackedPolicy`` -> ``gae`` -> ``ppo_update``.
+This file is the reference, to read top to bottom like a single-file PPO: ``StackedMLP`` ->
+``StackedPolicy`` -> ``gae`` -> ``Rollout`` -> ``minibatches`` -> ``ppo_loss`` ->
+``ppo_update_autograd``.  The same update, faster, sits beside it: ``ppo_manual.py`` (the loss
+gradient written by hand) and ``ppo_kernel.py`` (the C++ kernel); ``ppo_backends.ppo_update``
+chooses among the three.
 """
 
 from __future__ import annotations
 
-import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
 from torch import nn
-
-from . import native
-
-logger = logging.getLogger(__name__)
 
 CLIP_RANGE = 0.2
 GAE_LAMBDA = 0.95
@@ -174,61 +174,23 @@ class Rollout:
     returns: torch.Tensor  # (L, N)
 
 
-GRADIENTS = ("auto", "kernel", "manual", "autograd")
-
-
-def ppo_update(
-    policy: StackedPolicy,
-    optimizer: torch.optim.Optimizer,
+def minibatches(
     data: Rollout,
     n_epochs: int,
     batch_size: int,
     permutations: list[torch.Tensor] | None = None,
     generator: torch.Generator | None = None,
-    gradients: str = "auto",
-) -> None:
-    """SB3 ``PPO.train`` for every learner at once.
+) -> Iterator[tuple[torch.Tensor, ...]]:
+    """SB3's minibatches of every learner: per epoch a permutation of the rollout, then contiguous
+    slices of ``batch_size``, advantages normalised per minibatch and learner.
 
     ``permutations``: one (L, N) index tensor per epoch (tests pass SB3's); by default each learner
     draws its own random permutation per epoch.  The rollout is permuted once per epoch and the
-    minibatches are then contiguous slices (SB3 indexes each minibatch: same samples, fewer ops).
-    Runs on the device of ``policy`` and ``data`` (CPU in the collector; the benchmark also times
-    CUDA).  ``gradients``:
-
-    - ``"kernel"``: the C++ kernel (``native.py``, ``kernels/ppo_update.cpp``): each learner's whole
-      update in cache, learners split across ``torch.get_num_threads()`` threads; CPU, float32 and an
-      Adam optimizer only.  Without ``permutations`` it draws each learner's permutations itself from
-      one seed taken from ``generator``, so its minibatches differ from the torch paths' (same law).
-    - ``"manual"``: torch ops with the loss gradient written by hand into preallocated buffers
-      (``ManualGradients``); any device.
-    - ``"autograd"``: the plain PyTorch reference.
-    - ``"auto"`` (default): the kernel where it applies and builds, else ``"manual"`` (logged once).
-
-    All are tested against SB3's ``PPO.train``.
+    minibatches are then slices (SB3 indexes each minibatch: the same samples, fewer ops).
+    Yields (obs (L, b, d), actions, advantages, old log-probs, returns (L, b) each).
     """
-    if gradients not in GRADIENTS:
-        raise ValueError(f"gradients must be one of {GRADIENTS}, got {gradients!r}")
-    if gradients in ("auto", "kernel"):
-        reason = kernel_unsupported(policy, optimizer, data)
-        if reason is None:
-            try:
-                native.load(policy.net.weights[0].shape[-1])
-            except native.KernelUnavailable as e:
-                reason = str(e)
-        if reason is None:
-            _ppo_update_kernel(
-                policy, optimizer, data, n_epochs, batch_size, permutations, generator
-            )
-            return
-        if gradients == "kernel":
-            raise native.KernelUnavailable(reason)
-        _warn_fallback(reason)
-        gradients = "manual"
     L, N = data.actions.shape
     d = data.obs.shape[-1]
-    params = list(policy.parameters())
-    manual = ManualGradients(policy) if gradients == "manual" else None
-    step = FusedAdamStep(optimizer) if manual is not None else optimizer.step
     for epoch in range(n_epochs):
         perm = (
             permutations[epoch]
@@ -240,115 +202,13 @@ def ppo_update(
         logp_e, ret_e = data.old_logp.gather(1, perm), data.returns.gather(1, perm)
         for start in range(0, N, batch_size):
             mb = slice(start, start + batch_size)
-            obs, actions, adv = (
-                obs_e[:, mb],
-                act_e[:, mb],
-                adv_e[:, mb],
-            )  # (L, b, d), (L, b), (L, b)
+            adv = adv_e[:, mb]  # (L, b)
             if adv.shape[1] > 1:
                 adv = (adv - adv.mean(1, keepdim=True)) / (adv.std(1, keepdim=True) + 1e-8)
-            if manual is not None:
-                manual(obs, actions, adv, logp_e[:, mb], ret_e[:, mb])
-            else:
-                optimizer.zero_grad(set_to_none=True)
-                _ppo_loss(policy, obs, actions, adv, logp_e[:, mb], ret_e[:, mb]).backward()
-            clip_grad_norm_per_learner(params, MAX_GRAD_NORM, L)
-            step()
+            yield obs_e[:, mb], act_e[:, mb], adv, logp_e[:, mb], ret_e[:, mb]
 
 
-def kernel_unsupported(policy: StackedPolicy, optimizer, data: Rollout) -> str | None:
-    """Why the C++ kernel cannot run this update (None when it can)."""
-    w = policy.net.weights
-    if any(p.device.type != "cpu" or p.dtype != torch.float32 for p in policy.parameters()):
-        return "the kernel runs float32 CPU policies only"
-    if data.obs.device.type != "cpu":
-        return "the kernel needs the rollout on the CPU"
-    hidden = w[0].shape[-1]
-    if w[1].shape[-2:] != (hidden, hidden) or hidden % 16 != 0:
-        return f"the kernel needs two equal hidden layers, a multiple of 16 wide (got {tuple(w[1].shape[-2:])})"
-    if not isinstance(optimizer, torch.optim.Adam) or len(optimizer.param_groups) != 1:
-        return "the kernel implements a single-group torch.optim.Adam"
-    group = optimizer.param_groups[0]
-    if group["amsgrad"] or group["weight_decay"] != 0 or group["maximize"]:
-        return "the kernel implements Adam without amsgrad, weight decay or maximize"
-    if isinstance(group["lr"], torch.Tensor):
-        return "the kernel needs a float learning rate"
-    if {id(p) for p in group["params"]} != {id(p) for p in policy.parameters()}:
-        return "the optimizer must hold exactly the policy's parameters"
-    return None
-
-
-_warned: set[str] = set()
-
-
-def _warn_fallback(reason: str) -> None:
-    if reason not in _warned:
-        _warned.add(reason)
-        logger.warning("batched PPO: the C++ kernel is not used (%s); torch ops instead", reason)
-
-
-def _ppo_update_kernel(
-    policy: StackedPolicy,
-    optimizer: torch.optim.Optimizer,
-    data: Rollout,
-    n_epochs: int,
-    batch_size: int,
-    permutations: list[torch.Tensor] | None,
-    generator: torch.Generator | None,
-) -> None:
-    L, N = data.actions.shape
-    params = policy.stacked_params()
-    group = optimizer.param_groups[0]
-    for p in params:  # torch's Adam state layout, so optimizer.state_dict() stays valid
-        st = optimizer.state[p]
-        if not st:
-            st["step"] = torch.tensor(0.0, dtype=torch.float32)
-            st["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
-            st["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
-    states = [optimizer.state[p] for p in params]
-    steps = {float(st["step"]) for st in states}
-    if len(steps) != 1:
-        raise RuntimeError(f"Adam step counts differ across the policy's parameters: {steps}")
-    perms = None
-    if permutations is not None:
-        perms = torch.stack([torch.as_tensor(p, dtype=torch.int64) for p in permutations])
-        if perms.shape != (n_epochs, L, N):
-            raise ValueError(
-                f"permutations: expected {n_epochs} of shape ({L}, {N}), got {tuple(perms.shape)}"
-            )
-        perms = perms.contiguous()
-    seed = int(torch.randint(0, 2**62, (1,), generator=generator))
-    tensors = {
-        "obs": data.obs.to(torch.float32).contiguous(),
-        "actions": data.actions.to(torch.int64).contiguous(),
-        "old_logp": data.old_logp.to(torch.float32).contiguous(),
-        "advantages": data.advantages.to(torch.float32).contiguous(),
-        "returns": data.returns.to(torch.float32).contiguous(),
-    }
-    with torch.no_grad():
-        native.ppo_update_kernel(
-            tensors,
-            [p.data for p in params],
-            [st["exp_avg"] for st in states],
-            [st["exp_avg_sq"] for st in states],
-            n_epochs=n_epochs,
-            batch_size=batch_size,
-            perms=perms,
-            seed=seed,
-            lr=float(group["lr"]),
-            betas=tuple(group["betas"]),
-            eps=float(group["eps"]),
-            step0=steps.pop(),
-            clip_range=CLIP_RANGE,
-            vf_coef=VF_COEF,
-            max_grad_norm=MAX_GRAD_NORM,
-        )
-        n_steps = n_epochs * math.ceil(N / batch_size)
-        for st in states:
-            st["step"] += n_steps
-
-
-def _ppo_loss(policy, obs, actions, adv, old_logp, returns) -> torch.Tensor:
+def ppo_loss(policy, obs, actions, adv, old_logp, returns) -> torch.Tensor:
     """SB3's PPO loss (entropy coefficient 0) of every learner, summed: each learner its own gradient."""
     logits, values = policy(obs)
     logp = torch.log_softmax(logits, dim=-1).gather(-1, actions.unsqueeze(-1)).squeeze(-1)
@@ -358,138 +218,6 @@ def _ppo_loss(policy, obs, actions, adv, old_logp, returns) -> torch.Tensor:
     ).mean(1)
     value_loss = ((returns - values) ** 2).mean(1)
     return (policy_loss + VF_COEF * value_loss).sum()  # (L,) summed
-
-
-class ManualGradients:
-    """The gradient of ``_ppo_loss`` written by hand into each parameter's ``.grad``.
-
-    Why: with autograd a minibatch step of 81 learners x 50 samples spends most of its time outside
-    the matmuls: allocating and freeing (2L, b, 64) activations and gradients (2 MB each, so every
-    allocation is fresh memory: ``tanh`` into a new tensor measured 193 us vs 121 us into a reused
-    one), autograd bookkeeping, and copies.  Here every activation and gradient lives in a buffer
-    allocated once per ``ppo_update`` and minibatch shape, ops write with ``out=`` / in place, and
-    ``tanh``'s backward reuses the forward's output.  The formulas are autograd's (log-softmax is
-    spelled out; results agree to float rounding, tested against autograd and SB3):
-
-    - ``d loss / d logp_i = -adv_i * ratio_i * active_i / b`` where ``active_i`` is 1 when the
-      unclipped term is the minimum or the ratio lies inside the clip range (``torch.min`` splits a tie
-      evenly and ``clamp`` passes the gradient inside its closed range, so a tie gives the full
-      gradient), and ``d logp_i / d logits = onehot(a_i) - softmax(logits_i)``;
-    - ``d loss / d value_i = 2 * VF_COEF * (value_i - return_i) / b`` (only column 0 of a critic's
-      padded head; the other columns' gradients are zero, as with autograd).
-    """
-
-    def __init__(self, policy: StackedPolicy) -> None:
-        self.policy = policy
-        self.buffers: dict[tuple[int, ...], dict[str, torch.Tensor]] = {}
-        for p in policy.parameters():
-            if p.grad is None or p.grad.shape != p.shape:
-                p.grad = torch.zeros_like(p)
-
-    def _workspace(self, b: int, d: int) -> dict[str, torch.Tensor]:
-        if (b, d) not in self.buffers:
-            n2 = 2 * self.policy.num_learners
-            widths = [w.shape[-1] for w in self.policy.net.weights]  # [64, 64, A]
-            kw = {"device": self.policy.net.weights[0].device}  # the policy's device
-            self.buffers[(b, d)] = {
-                "x": torch.empty(n2, b, d, **kw),
-                "h1": torch.empty(n2, b, widths[0], **kw),
-                "h2": torch.empty(n2, b, widths[1], **kw),
-                "out": torch.empty(n2, b, widths[2], **kw),
-                "dout": torch.zeros(n2, b, widths[2], **kw),  # critic columns 1.. stay zero
-                "dh2": torch.empty(n2, b, widths[1], **kw),
-                "dh1": torch.empty(n2, b, widths[0], **kw),
-            }
-        return self.buffers[(b, d)]
-
-    @torch.no_grad()
-    def __call__(self, obs, actions, adv, old_logp, returns) -> None:
-        """obs (L, b, d), actions / adv / old_logp / returns (L, b)."""
-        L, b, d = obs.shape
-        ws = self._workspace(b, d)
-        (W1, W2, W3), (B1, B2, B3) = self.policy.net.weights, self.policy.net.biases
-        x, h1, h2, out, dout = ws["x"], ws["h1"], ws["h2"], ws["out"], ws["dout"]
-        # forward: actor rows [0, L), critic rows [L, 2L) see the same observations
-        x[:L] = obs
-        x[L:] = obs  # (2L, b, d)
-        torch.baddbmm(B1, x, W1, out=h1).tanh_()  # (2L, b, 64)
-        torch.baddbmm(B2, h1, W2, out=h2).tanh_()  # (2L, b, 64)
-        torch.baddbmm(B3, h2, W3, out=out)  # (2L, b, A)
-        # log-softmax by hand: ATen's kernel is slow for a last dimension of 5 (~4x these ops)
-        z = out[:L] - out[:L].amax(-1, keepdim=True)  # (L, b, A)
-        probs = z.exp()
-        norm = probs.sum(-1, keepdim=True)  # (L, b, 1)
-        logp = z.gather(-1, actions.unsqueeze(-1)).squeeze(-1) - norm.log().squeeze(-1)  # (L, b)
-        ratio = torch.exp(logp - old_logp)  # (L, b)
-        clipped = ratio.clamp(1 - CLIP_RANGE, 1 + CLIP_RANGE)
-        active = (ratio == clipped) | (adv * ratio < adv * clipped)
-        g_logp = torch.where(active, adv * ratio, 0.0).mul_(-1.0 / b)  # d loss / d logp (L, b)
-        # d loss / d logits = g_logp * (onehot(action) - softmax)  (L, b, A)
-        d_logits = dout[:L]
-        torch.mul(probs, g_logp.neg().unsqueeze(-1) / norm, out=d_logits)
-        d_logits.scatter_add_(-1, actions.unsqueeze(-1), g_logp.unsqueeze(-1))
-        torch.sub(out[L:, :, 0], returns, out=dout[L:, :, 0]).mul_(2 * VF_COEF / b)
-        # backward through the three layers; tanh' = 1 - tanh^2 from the forward's outputs
-        torch.bmm(h2.transpose(1, 2), dout, out=W3.grad)  # (2L, 64, A)
-        torch.sum(dout, 1, keepdim=True, out=B3.grad)  # (2L, 1, A)
-        dh2 = torch.bmm(dout, W3.transpose(1, 2), out=ws["dh2"])  # (2L, b, 64)
-        torch.ops.aten.tanh_backward.grad_input(dh2, h2, grad_input=dh2)
-        torch.bmm(h1.transpose(1, 2), dh2, out=W2.grad)  # (2L, 64, 64)
-        torch.sum(dh2, 1, keepdim=True, out=B2.grad)  # (2L, 1, 64)
-        dh1 = torch.bmm(dh2, W2.transpose(1, 2), out=ws["dh1"])  # (2L, b, 64)
-        torch.ops.aten.tanh_backward.grad_input(dh1, h1, grad_input=dh1)
-        torch.bmm(x.transpose(1, 2), dh1, out=W1.grad)  # (2L, d, 64)
-        torch.sum(dh1, 1, keepdim=True, out=B1.grad)  # (2L, 1, 64)
-
-
-class FusedAdamStep:
-    """``optimizer.step()`` of a fused ``torch.optim.Adam`` without its per-call Python bookkeeping.
-
-    The same two kernels ``torch.optim.Adam(fused=True).step`` runs on CPU (``_foreach_add_`` on the
-    step counters, then ``_fused_adam_``) on the optimizer's own state tensors, so its
-    ``state_dict`` stays valid.  Saves ~0.2 ms of a ~6 ms minibatch step.  Falls back to
-    ``optimizer.step`` for anything else (another optimizer, several groups, amsgrad, decay).
-    """
-
-    def __init__(self, optimizer: torch.optim.Optimizer) -> None:
-        self.optimizer = optimizer
-        self.ready = False
-        group = optimizer.param_groups[0]
-        self.eligible = (
-            isinstance(optimizer, torch.optim.Adam)
-            and len(optimizer.param_groups) == 1
-            and bool(group.get("fused"))
-            and not group["amsgrad"]
-            and group["weight_decay"] == 0
-            and not group["maximize"]
-            and not isinstance(group["lr"], torch.Tensor)
-        )
-
-    def __call__(self) -> None:
-        if not self.eligible or not self.ready:
-            self.optimizer.step()  # the first call creates the state
-            self.ready = True
-            return
-        group = self.optimizer.param_groups[0]
-        params = group["params"]
-        state = [self.optimizer.state[p] for p in params]
-        steps = [st["step"] for st in state]
-        torch._foreach_add_(steps, 1)
-        torch._fused_adam_(
-            params,
-            [p.grad for p in params],
-            [st["exp_avg"] for st in state],
-            [st["exp_avg_sq"] for st in state],
-            [],
-            steps,
-            amsgrad=False,
-            lr=group["lr"],
-            beta1=group["betas"][0],
-            beta2=group["betas"][1],
-            weight_decay=0.0,
-            eps=group["eps"],
-            maximize=False,
-        )
 
 
 def clip_grad_norm_per_learner(
@@ -513,3 +241,23 @@ def clip_grad_norm_per_learner(
 def make_optimizer(policy: StackedPolicy, lr: float) -> torch.optim.Optimizer:
     # fused: one kernel for all parameters (the same Adam; it is elementwise, so stacking is exact).
     return torch.optim.Adam(policy.parameters(), lr=lr, eps=ADAM_EPS, fused=True)
+
+
+def ppo_update_autograd(
+    policy: StackedPolicy,
+    optimizer: torch.optim.Optimizer,
+    data: Rollout,
+    n_epochs: int,
+    batch_size: int,
+    permutations: list[torch.Tensor] | None = None,
+    generator: torch.Generator | None = None,
+) -> None:
+    """SB3 ``PPO.train`` for every learner at once, with autograd: the reference update."""
+    params = list(policy.parameters())
+    for obs, actions, adv, old_logp, returns in minibatches(
+        data, n_epochs, batch_size, permutations, generator
+    ):
+        optimizer.zero_grad(set_to_none=True)
+        ppo_loss(policy, obs, actions, adv, old_logp, returns).backward()
+        clip_grad_norm_per_learner(params, MAX_GRAD_NORM, policy.num_learners)
+        optimizer.step()

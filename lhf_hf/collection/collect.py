@@ -16,6 +16,7 @@ from datetime import timedelta
 from multiprocessing import get_context
 from pathlib import Path
 
+import torch
 from tqdm.auto import tqdm
 
 from lhf_hf import constants as C
@@ -42,7 +43,7 @@ class _Ranks:
         self.world = int(os.environ.get("WORLD_SIZE", "1"))
         self.state = None
         if self.world > 1:
-            from accelerate import PartialState
+            from accelerate import PartialState  # deferred: 1.4 s, needed under a launcher only
 
             # A long timeout: ranks wait for each other's whole share of tasks at the barrier.
             self.state = PartialState(cpu=True, timeout=timedelta(hours=48))
@@ -196,8 +197,6 @@ def _run_batched(
 
 
 def torch_threads() -> int:
-    import torch
-
     return torch.get_num_threads()
 
 

@@ -39,7 +39,7 @@ class Comparison:
     @property
     def k(self) -> float:
         """Half-width of the prediction interval in units of the across-seed sd."""
-        from scipy.stats import t
+        from scipy.stats import t  # deferred: 0.8 s, for the equivalence check only
 
         S = self.sb3.shape[0]
         return float(t.ppf((1 + self.level) / 2, S - 1) * np.sqrt(1 + 1 / S))
@@ -84,10 +84,10 @@ class Comparison:
         return "\n".join(rows)
 
     def plot(self, path) -> None:
-        import matplotlib
+        import matplotlib  # deferred: 0.5 s, paid only when a figure is drawn
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # deferred: after matplotlib.use("Agg")
 
         fig, ax = plt.subplots(figsize=(6, 3.6), dpi=120)
         x = np.arange(1, self.sb3.shape[1] + 1)

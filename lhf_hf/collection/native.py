@@ -5,7 +5,7 @@ The kernel is compiled on first use with the system's C++ compiler (``$CXX`` or 
 (``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags and the
 compiler's version; the file is written under a temporary name and renamed, so concurrent builds are
 safe.  No compiler, or a failed build, raises :class:`KernelUnavailable` with the reason; the
-``auto`` gradients mode of :func:`lhf_hf.collection.batched_ppo.ppo_update` then falls back to the
+``auto`` gradients mode of :func:`lhf_hf.collection.ppo_backends.ppo_update` then falls back to the
 torch implementation.
 
 Threads: learners are independent, so ``[0, L)`` is split into contiguous pieces (8 per thread) that

@@ -16,6 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec, make
@@ -56,8 +60,6 @@ def plan_task(config: CollectConfig, task: int) -> list[LearnerPlan]:
 
 
 def _vec_env(config: CollectConfig, task: int, n: int, seed: int) -> RecordingVecEnv:
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
     def factory():
         return make(config.env_id, task, split_seed=config.split_seed)
 
@@ -69,8 +71,6 @@ def _vec_env(config: CollectConfig, task: int, n: int, seed: int) -> RecordingVe
 
 
 def _run_ppo(config: CollectConfig, rec: RecordingVecEnv, seed: int) -> None:
-    from stable_baselines3 import PPO
-
     p = config.ppo
     model = PPO(
         "MlpPolicy",
@@ -88,8 +88,6 @@ def _run_ppo(config: CollectConfig, rec: RecordingVecEnv, seed: int) -> None:
 
 
 def _run_sac(config: CollectConfig, rec: RecordingVecEnv, seed: int) -> None:
-    from stable_baselines3 import SAC
-
     s = config.sac
     model = SAC(
         "MlpPolicy",
@@ -131,9 +129,6 @@ RUNNERS: dict[str, Callable[[CollectConfig, RecordingVecEnv, int], None]] = {
 
 def collect_task_histories(config: CollectConfig, task: int) -> TaskHistories:
     """Run every learner of ``task`` and return its histories (H, T, ...)."""
-    import torch
-    from stable_baselines3.common.utils import set_random_seed
-
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # same numbers whatever the worker count (and no oversubscription)
     parts, kinds, learner_index, seeds = [], [], [], []

@@ -6,12 +6,18 @@ import dataclasses
 import os
 import re
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 from lhf_hf.envs import get_spec
 
-PROTOCOLS = ("paper", "independent", "noisy")
-ALGOS = ("ppo", "sac")
-COLLECTORS = ("sb3", "batched")
+Protocol = Literal["paper", "independent", "noisy"]
+Algo = Literal["ppo", "sac"]
+Collector = Literal["sb3", "batched"]
+PpoBackend = Literal["auto", "kernel", "torch"]
+PROTOCOLS: tuple[str, ...] = get_args(Protocol)
+ALGOS: tuple[str, ...] = get_args(Algo)
+COLLECTORS: tuple[str, ...] = get_args(Collector)
+PPO_BACKENDS: tuple[str, ...] = get_args(PpoBackend)
 #: transitions per batched chunk when tasks_per_chunk is not given (bounds memory at any scale)
 CHUNK_TRANSITIONS = 50_000_000
 
@@ -107,10 +113,6 @@ def parse_tasks(
     return out
 
 
-#: batched collector PPO update backends (see CollectConfig.ppo_backend)
-PPO_BACKENDS = ("auto", "kernel", "torch")
-
-
 @dataclass
 class CollectConfig:
     """How to collect learning histories.  Stored in the dataset's ``meta/info.json``.
@@ -155,9 +157,9 @@ class CollectConfig:
     tasks: str | list[int] = "all"
     histories: int = 100
     steps: int = 1000
-    protocol: str = "paper"
-    algo: str = "ppo"
-    collector: str = "sb3"
+    protocol: Protocol = "paper"
+    algo: Algo = "ppo"
+    collector: Collector = "sb3"
     seed: int = 0
     split_seed: int = 0
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
@@ -166,7 +168,7 @@ class CollectConfig:
     sac: SACSettings = field(default_factory=SACSettings)
     tasks_per_chunk: int | None = None
     device: str = "cpu"
-    ppo_backend: str = "auto"
+    ppo_backend: PpoBackend = "auto"
 
     def __post_init__(self) -> None:
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones

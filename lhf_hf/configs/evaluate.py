@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Literal, get_args
+
+Context = Literal["cache", "recompute", "window"]
+CONTEXTS: tuple[str, ...] = get_args(Context)
 
 
 @dataclass(frozen=True)
@@ -32,15 +36,13 @@ class EvalConfig:
     episodes: int = 100
     plan: bool = False
     seed: int = 0
-    context: str = "cache"
+    context: Context = "cache"
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
-        if self.context not in ("cache", "recompute", "window"):
-            raise ValueError(
-                f"EvalConfig.context must be 'cache', 'recompute' or 'window', got {self.context!r}"
-            )
+        if self.context not in CONTEXTS:
+            raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in ("test", "train"):

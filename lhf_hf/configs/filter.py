@@ -5,9 +5,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Literal, get_args
 
-STRATEGIES = ("linear", "softmax", "none", "top-fraction")
-SCAN_ORDERS = ("descending", "dataset")
+Strategy = Literal["linear", "softmax", "none", "top-fraction"]
+ScanOrder = Literal["descending", "dataset"]
+STRATEGIES: tuple[str, ...] = get_args(Strategy)
+SCAN_ORDERS: tuple[str, ...] = get_args(ScanOrder)
 
 
 @dataclass(frozen=True)
@@ -28,13 +31,13 @@ class FilterConfig:
         ``dataset`` order.
     """
 
-    strategy: str = "linear"
+    strategy: Strategy = "linear"
     lam: float = 1.0
     alpha: float = 0.125
     fraction: float = 0.5
     seed: int = 0
     r_max: float | None = None
-    scan_order: str = "descending"
+    scan_order: ScanOrder = "descending"
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:

@@ -6,12 +6,10 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from lhf_hf.constants import OBJECTIVES
+from lhf_hf.constants import Objective
 from lhf_hf.utils.hub import validate_repo_id
 
-# Mirrors lhf_hf.modeling.PRESETS (kept here so that configs import without transformers; a test
-# checks that both agree).
-MODEL_PRESETS = ("paper", "lightweight", "tiny")
+from .model import LabelPositions, ModelPreset, check_model_fields
 
 
 @dataclass(frozen=True)
@@ -29,10 +27,15 @@ class TrainConfig:
     label_positions: ``all`` (a label at every position) or ``query`` (last position only, as the
         reference AD); None = ``all``.
     lr: peak learning rate (paper 1e-2), cosine decay to 0 after ``warmup_steps`` of linear warm-up.
-    weight_decay / beta1 / beta2 / max_grad_norm: AdamW and clipping (paper: 0.01, 0.9, 0.99; 1).
+    warmup_steps: steps of linear learning-rate warm-up from 0 (the paper's GPU runs: 1,000).
+    weight_decay: AdamW weight decay (paper 0.01).
+    beta1: AdamW beta1 (paper 0.9).
+    beta2: AdamW beta2 (paper 0.99).
+    max_grad_norm: gradient clipping norm (paper 1).
     dynamics_coef: xi, the DICP dynamics loss weight.
     seed: seeds the model init, dropout and the window sampler (every process gets the same seed).
-    save_steps: checkpoint interval (resumable with ``resume``); logging_steps: loss log interval.
+    save_steps: checkpoint interval (resumable with ``resume``).
+    logging_steps: loss log interval.
     resume: continue from the last checkpoint in ``out``.
     overwrite: start afresh in an ``out`` that already holds checkpoints or a model.
     push_to_hub: a model repo id ``ORG/NAME``: Trainer pushes every saved checkpoint's weights
@@ -41,14 +44,14 @@ class TrainConfig:
     """
 
     dataset: str
-    objective: str
+    objective: Objective
     out: str
     selection: str | None = None
-    preset: str = "paper"
+    preset: ModelPreset = "paper"
     max_steps: int = 2000
     batch_size: int = 64
     context_length: int | None = None
-    label_positions: str | None = None
+    label_positions: LabelPositions | None = None
     lr: float = 1e-2
     warmup_steps: int = 0
     weight_decay: float = 0.01
@@ -68,28 +71,26 @@ class TrainConfig:
         def bad(field: str, why: str):
             return ValueError(f"TrainConfig.{field} {why}, got {getattr(self, field)!r}")
 
-        if self.objective not in OBJECTIVES:
-            raise bad("objective", f"must be one of {OBJECTIVES}")
-        if self.preset not in MODEL_PRESETS:
-            raise bad("preset", f"must be one of {MODEL_PRESETS}")
+        # the model's own fields: ICRLConfig's rules (configs/model.py), checked before anything loads
+        check_model_fields(
+            "TrainConfig",
+            objective=self.objective,
+            label_positions=self.label_positions,
+            context_length=self.context_length,
+            dynamics_coef=self.dynamics_coef,
+            preset=self.preset,
+        )
         for name in ("max_steps", "batch_size", "save_steps", "logging_steps"):
             if getattr(self, name) < 1:
                 raise bad(name, "must be >= 1")
-        if self.context_length is not None and self.context_length < 1:
-            raise bad("context_length", "must be >= 1 (or None for the env's default)")
-        if self.label_positions not in (None, "all", "query"):
-            raise bad("label_positions", "must be 'all' or 'query'")
-        if self.objective == "dpt" and self.label_positions == "query":
-            raise bad("label_positions", "must be 'all' for DPT (its loss is over every prefix)")
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise bad("lr", "must be > 0")
         if self.warmup_steps < 0 or self.warmup_steps >= self.max_steps:
             raise bad("warmup_steps", f"must be in [0, max_steps={self.max_steps})")
-        if self.weight_decay < 0 or self.max_grad_norm <= 0 or self.dynamics_coef < 0:
-            raise ValueError(
-                "TrainConfig.weight_decay and dynamics_coef must be >= 0 and max_grad_norm > 0, got "
-                f"{self.weight_decay!r}, {self.dynamics_coef!r}, {self.max_grad_norm!r}"
-            )
+        if not self.weight_decay >= 0:
+            raise bad("weight_decay", "must be >= 0")
+        if not self.max_grad_norm > 0:
+            raise bad("max_grad_norm", "must be > 0")
         if self.resume and self.overwrite:
             raise ValueError("TrainConfig: resume and overwrite exclude each other")
         for name in ("beta1", "beta2"):

@@ -44,7 +44,7 @@ _MISSING = (
 def import_metaworld():
     """Import metaworld or raise an ImportError that says how to install it."""
     try:
-        import metaworld
+        import metaworld  # deferred: the optional metaworld extra (MuJoCo)
     except ImportError as exc:  # pragma: no cover - exercised in a subprocess test
         raise ImportError(_MISSING) from exc
     return metaworld

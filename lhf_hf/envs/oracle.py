@@ -30,7 +30,7 @@ def _scripted_policy(task_name: str):
     from .metaworld_ml1 import import_metaworld  # deferred: metaworld is an optional extra
 
     import_metaworld()
-    import metaworld.policies as policies
+    import metaworld.policies as policies  # deferred: the optional metaworld extra
 
     cls_name = "Sawyer" + "".join(w.capitalize() for w in task_name.split("-")) + "V3Policy"
     return getattr(policies, cls_name)()

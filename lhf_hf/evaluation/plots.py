@@ -10,10 +10,10 @@ from lhf_hf.utils.io import save_figure_atomic
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # deferred: 0.5 s, paid only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: after matplotlib.use("Agg")
 
     return plt
 

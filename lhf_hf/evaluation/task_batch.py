@@ -39,7 +39,9 @@ class GymTasks:
         self.envs = [make(env_id, t, split_seed=split_seed) for t in tasks]
         self.horizon = spec.horizon
         box = isinstance(spec.action_space, gym.spaces.Box)
-        self.low, self.high = (spec.action_space.low, spec.action_space.high) if box else (None, None)
+        self.low, self.high = (
+            (spec.action_space.low, spec.action_space.high) if box else (None, None)
+        )
         self.state_dtype = spec.state_space.dtype
         self.seed = seed
         self.episode = 0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from huggingface_hub import DatasetCard, DatasetCardData
+
 from lhf_hf.utils.templates import template_path
 
 from .select import CONFIG_FILE, SCORES_FILE, SELECTION_FILE
@@ -16,8 +18,6 @@ def _fmt(x) -> str:
 
 def render_selection_card(path: str | Path, load_path: str | None = None) -> str:
     """Card text of the selection folder ``path``; its snippets load it from ``load_path``."""
-    from huggingface_hub import DatasetCard, DatasetCardData
-
     path = Path(path)
     meta = json.loads((path / CONFIG_FILE).read_text())
     flt, src, summary = meta["filter"], meta["source"], meta.get("summary", {})

@@ -20,10 +20,10 @@ def plot_selection(
     """Left: U of every history of (up to ``max_tasks``) tasks, selected ones sized by their count.
     Right: mean return per episode of the selection (weighted by count) vs the rejected histories
     vs the whole source."""
-    import matplotlib
+    import matplotlib  # deferred: 0.5 s, paid only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: after matplotlib.use("Agg")
 
     t = selection_table
     task = t.column(C.TASK_INDEX).to_numpy()

@@ -11,7 +11,7 @@ from lhf_hf.histories.reader import load_histories
 from lhf_hf.utils.io import write_text_atomic
 
 from .card import render_selection_card
-from .materialize import materialize
+from .materialize import materialize as materialize_histories
 from .plots import plot_selection
 from .select import CONFIG_FILE, PLOT_FILE, filter_histories
 
@@ -21,11 +21,12 @@ def run_filter(
     out: str | Path,
     config: FilterConfig,
     *,
-    materialize_to: str | Path | None = None,
+    materialize: str | Path | None = None,
     overwrite: bool = False,
     progress: bool = True,
 ) -> dict:
-    """Filter ``dataset`` with ``config``; write the selection (and a materialised dataset) to disk.
+    """Filter ``dataset`` with ``config``; write the selection to ``out`` (and, with
+    ``materialize``, the selected histories with their repeats as a dataset in that folder).
 
     Returns the summary (counts, learner shares, mean returns of selected vs rejected, timings).
     """
@@ -47,9 +48,11 @@ def run_filter(
         + (f", alpha={config.alpha}" if config.strategy == "softmax" else "")
     )
     plot_selection(selection.table, returns, out / PLOT_FILE, title=f"{ds.env_id}: {label}")
-    if materialize_to is not None:
+    if materialize is not None:
         start = time.perf_counter()
-        new = materialize(ds, selection, materialize_to, overwrite=overwrite, progress=progress)
+        new = materialize_histories(
+            ds, selection, materialize, overwrite=overwrite, progress=progress
+        )
         summary["materialize_seconds"] = round(time.perf_counter() - start, 3)
         (new.root / "meta" / PLOT_FILE).write_bytes((out / PLOT_FILE).read_bytes())
         selection.save(out, summary)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from huggingface_hub import DatasetCard, DatasetCardData
 
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
@@ -34,8 +35,6 @@ def _fmt(x: float) -> str:
 
 def render_card(ds, load_path: str | None = None) -> str:
     """Render the card text of dataset ``ds`` (a ``HistoryDataset``)."""
-    from huggingface_hub import DatasetCard, DatasetCardData
-
     lhf, info = ds.lhf, ds.info
     spec = get_spec(ds.env_id)
     collect = lhf.get("collect", {})

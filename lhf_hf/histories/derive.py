@@ -125,3 +125,7 @@ def derive_half(
         resume=resume,
         progress=progress,
     )
+
+
+#: ``lhf derive OP``: the derivations by name (``DeriveOptions.op``).
+DERIVATIONS = {"half": derive_half}

@@ -15,6 +15,7 @@ meta tables, stats, info, card and plot, then removes ``meta/.parts``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from datetime import UTC, datetime
@@ -245,8 +246,6 @@ def finalize(
         )
     write_parquet_atomic(pa.Table.from_pylist(rows), root / C.TASKS_PATH)
     write_json_atomic(_merge_stats([m["stats"] for m in markers]), root / C.STATS_PATH)
-
-    import hashlib
 
     fingerprint = hashlib.sha256("".join(m["sha256"] for m in markers).encode()).hexdigest()
     feats = markers[0]["features"]

@@ -1,11 +1,12 @@
 """ICRL models (AD, DPT, DICP) on ``transformers.LlamaModel``; registered with AutoConfig/AutoModel."""
 
-from .configuration_icrl import OBJECTIVES, PRESETS, ICRLConfig, icrl_config
+from lhf_hf.configs.model import PRESETS
+
+from .configuration_icrl import ICRLConfig, icrl_config
 from .loading import load_model
 from .modeling_icrl import ICRLModel, ICRLOutput, ICRLPreTrainedModel
 
 __all__ = [
-    "OBJECTIVES",
     "PRESETS",
     "ICRLConfig",
     "ICRLModel",

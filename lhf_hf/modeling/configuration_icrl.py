@@ -3,7 +3,8 @@
 The backbone is ``transformers.LlamaModel`` fed through ``inputs_embeds``; this config adds what the
 ICRL model around it needs: the objective, the environment's state and action spaces, the context
 length in transitions, the label positions, the DICP dynamics weight xi and the planning settings.
-Paper sizes are in ``PRESETS`` (appendix "Transformer Models", Table "Key hyperparameters").
+Paper sizes are in ``lhf_hf.configs.model.PRESETS`` (appendix "Transformer Models", Table "Key hyperparameters"),
+with the field rules ``TrainConfig`` shares.
 """
 
 from __future__ import annotations
@@ -11,38 +12,7 @@ from __future__ import annotations
 from huggingface_hub.dataclasses import strict
 from transformers import LlamaConfig
 
-from lhf_hf.constants import OBJECTIVES
-
-LABEL_POSITIONS = ("all", "query")
-
-# Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,
-# dropout 0.1); "lightweight": appendix "ICRL with lightweight models" (2/2/16/64); "tiny": tests.
-PRESETS: dict[str, dict] = {
-    "paper": dict(
-        num_hidden_layers=4,
-        num_attention_heads=4,
-        hidden_size=32,
-        intermediate_size=128,
-        attention_dropout=0.1,
-        embedding_dropout=0.1,
-    ),
-    "lightweight": dict(
-        num_hidden_layers=2,
-        num_attention_heads=2,
-        hidden_size=16,
-        intermediate_size=64,
-        attention_dropout=0.1,
-        embedding_dropout=0.1,
-    ),
-    "tiny": dict(
-        num_hidden_layers=1,
-        num_attention_heads=2,
-        hidden_size=16,
-        intermediate_size=32,
-        attention_dropout=0.0,
-        embedding_dropout=0.0,
-    ),
-}
+from lhf_hf.configs.model import PRESETS, check_model_fields
 
 
 @strict
@@ -106,21 +76,20 @@ class ICRLConfig(LlamaConfig):
         def bad(field: str, why: str):
             return ValueError(f"ICRLConfig.{field} {why}, got {getattr(self, field)!r}")
 
-        if self.objective not in OBJECTIVES:
-            raise bad("objective", f"must be one of {OBJECTIVES}")
-        if self.label_positions not in LABEL_POSITIONS:
-            raise bad("label_positions", f"must be one of {LABEL_POSITIONS}")
-        if self.objective == "dpt" and self.label_positions != "all":
-            raise bad("label_positions", "must be 'all' for DPT (its loss is over every prefix)")
-        for name in ("state_dim", "action_dim", "context_length", "plan_beams", "plan_horizon"):
+        check_model_fields(
+            "ICRLConfig",
+            objective=self.objective,
+            label_positions=self.label_positions,
+            context_length=self.context_length,
+            dynamics_coef=self.dynamics_coef,
+        )
+        for name in ("state_dim", "action_dim", "plan_beams", "plan_horizon"):
             if getattr(self, name) < 1:
                 raise bad(name, "must be >= 1")
         if self.state_bins < 0 or self.state_bins == 1:
             raise bad("state_bins", "must be 0 (real-valued states) or >= 2")
         if self.discrete_actions and self.action_dim < 2:
             raise bad("action_dim", "must be >= 2 for a discrete action space")
-        if self.dynamics_coef < 0:
-            raise bad("dynamics_coef", "must be >= 0")
         if self.return_scale <= 0:
             raise bad("return_scale", "must be > 0")
         if not 0 <= self.embedding_dropout < 1:

@@ -4,6 +4,11 @@ A spec names the grid (envs x backbones), the data protocol, the LHF filter, the
 enhancements E for that table, and budget presets.  A preset overrides the sizes (histories per task,
 training steps, model preset, evaluation episodes) and may narrow the grid; ``paper`` is the paper's
 sizes, ``cpu`` the largest that fits a couple of hours on 2 cores, ``quick`` CI-sized.
+
+The stage settings are fields of the configs the stages run (``CollectConfig``, ``FilterConfig``,
+``TrainConfig``, ``EvalConfig``): what a spec leaves out takes the config's own default (there is no
+second set of defaults here), and every config of every stage is built once at load, so a typo or a
+bad value in any stage is an error before anything runs.
 """
 
 from __future__ import annotations
@@ -15,28 +20,41 @@ from pathlib import Path
 
 import yaml
 
+from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
+from lhf_hf.configs.commands import EXPERIMENT_PRESETS as PRESETS
 from lhf_hf.constants import OBJECTIVES
 from lhf_hf.envs import get_spec
 
 #: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
 EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
-PRESETS = ("quick", "cpu", "paper")
 
-#: Defaults of every stage; a spec's top level, then its preset, override them.
-DEFAULTS: dict = {
-    "runs": 3,
-    "collect": {
-        "tasks": "train",
-        "histories": 100,
-        "steps": 1000,
-        "protocol": "paper",
-        "collector": "batched",
-        "algo": "ppo",
-    },
-    "filter": {"strategy": "linear", "lam": 1.0, "alpha": 0.125},
-    "train": {"preset": "paper", "max_steps": 2000, "batch_size": 64, "lr": 3e-3},
-    "evaluate": {"episodes": 100, "plan_dicp": False},
+#: Config fields the reproduction sets itself, per run / env / backbone (a spec may not).
+SET_BY_RUN = {
+    "collect": {"env_id", "seed", "split_seed"},
+    "filter": {"seed"},
+    "train": {
+        "dataset",
+        "selection",
+        "out",
+        "objective",
+        "seed",
+        "resume",
+        "overwrite",
+        "push_to_hub",
+        "hub_private",
+    },  # fmt: skip
+    "evaluate": {"model", "out", "plan", "seed"},
 }
+#: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
+#: how DICP is evaluated.
+STAGE_EXTRAS = {"collect": {"half"}, "filter": {"sweep"}, "evaluate": {"plan_dicp"}}
+CONFIGS = {
+    "collect": CollectConfig,
+    "filter": FilterConfig,
+    "train": TrainConfig,
+    "evaluate": EvalConfig,
+}
+TOP_KEYS = {"title", "paper_table", "budget", "envs", "objectives", "runs", *CONFIGS}
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -53,11 +71,17 @@ class Experiment:
     name / title: the spec's file stem and a one-line description (the paper table it reproduces).
     envs / objectives: the grid; every cell trains a baseline and an LHF model per run.
     runs: independent runs; run r uses seed r and train/test split r (paper: 3).
-    collect / filter / train / evaluate: stage settings (CollectConfig, FilterConfig, TrainConfig,
-        EvalConfig fields; ``plan_dicp``: true evaluates DICP with planning (the paper's
-        protocol), false without, "both" both ways from the same checkpoints, as two backbones
-        "DICP" and "DICP + plan": with a small training budget the learned dynamics can be too poor
-        to plan with, and the model-free row shows whether the policy itself learned).
+    collect: ``CollectConfig`` fields; the reproduction sets ``env_id``, ``seed`` and ``split_seed``
+        per run and collects the train split (``tasks: train``) unless the spec narrows it.
+        ``half: true`` trains on the first half of every history (``lhf derive half``).
+    filter: ``FilterConfig`` fields (``seed`` = the run); ``sweep: {key, values}`` makes one LHF arm
+        per value.
+    train: ``TrainConfig`` fields (the data, objective, output and ``seed`` are the run's).
+    evaluate: ``EvalConfig`` fields (``seed`` = the run), and ``plan_dicp``: true evaluates DICP
+        with planning (the paper's protocol), false without, "both" both ways from the same
+        checkpoints, as two backbones "DICP" and "DICP + plan": with a small training budget the
+        learned dynamics can be too poor to plan with, and the model-free row shows whether the
+        policy itself learned.
     paper: the paper's E in percent, ``{env: {objective: value}}`` (None where it has none).
     budget: what the preset is, in words, against the paper's sizes (goes into the report).
     """
@@ -67,11 +91,11 @@ class Experiment:
     preset: str
     envs: tuple[str, ...]
     objectives: tuple[str, ...]
-    runs: int
-    collect: dict
-    filter: dict
-    train: dict
-    evaluate: dict
+    runs: int = 3
+    collect: dict = field(default_factory=dict)
+    filter: dict = field(default_factory=dict)
+    train: dict = field(default_factory=dict)
+    evaluate: dict = field(default_factory=dict)
     paper: dict = field(default_factory=dict)
     paper_table: str = ""
     budget: str = ""
@@ -91,6 +115,76 @@ class Experiment:
                 f"{self.name}: evaluate.plan_dicp must be true, false or 'both', "
                 f"got {self.evaluate['plan_dicp']!r}"
             )
+        for stage, cls in CONFIGS.items():
+            settings = getattr(self, stage)
+            allowed = {f.name for f in dataclasses.fields(cls)} - SET_BY_RUN[stage]
+            unknown = set(settings) - allowed - STAGE_EXTRAS.get(stage, set())
+            if unknown:
+                raise ValueError(
+                    f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
+                    f"(a {cls.__name__} field: one of {sorted(allowed)})"
+                )
+        sweep = self.filter.get("sweep")
+        if sweep is not None and (
+            not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
+        ):
+            raise ValueError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
+        # Every config of every stage, built now: a bad value fails before anything runs.
+        for env in self.envs:
+            self.collect_config(env, 0)
+        arms = self.filter_arms(0)
+        for objective in self.objectives:
+            self.train_config(objective, 0, dataset="-", selection=None, out="-")
+        for plan in self.dicp_plan_modes():
+            self.eval_config(0, model="-", out="-", plan=plan)
+        if len({a for a, _ in arms}) != len(arms):
+            raise ValueError(f"{self.name}: filter.sweep values repeat")
+
+    # ---- the configs of the stages (one source: the config dataclasses)
+    def collect_config(self, env: str, run: int) -> CollectConfig:
+        settings = {k: v for k, v in self.collect.items() if k != "half"}
+        # the train split by default: the models are evaluated on the run's unseen (test) tasks
+        return CollectConfig(env_id=env, seed=run, split_seed=run, **{"tasks": "train", **settings})
+
+    @property
+    def half(self) -> bool:
+        return bool(self.collect.get("half", False))
+
+    def filter_arms(self, run: int) -> list[tuple[str, FilterConfig]]:
+        """``[(arm name, FilterConfig)]``: ``lhf``, or one arm per value of the sweep."""
+        base = {k: v for k, v in self.filter.items() if k != "sweep"}
+        sweep = self.filter.get("sweep")
+        if not sweep:
+            return [("lhf", FilterConfig(**base, seed=run))]
+        key = sweep["key"]
+        if key not in {f.name for f in dataclasses.fields(FilterConfig)} - SET_BY_RUN["filter"]:
+            raise ValueError(f"{self.name}: filter.sweep.key {key!r} is not a FilterConfig field")
+        return [(f"{key}={v}", FilterConfig(**{**base, key: v}, seed=run)) for v in sweep["values"]]
+
+    def train_config(
+        self,
+        objective: str,
+        run: int,
+        *,
+        dataset: str,
+        selection: str | None,
+        out: str,
+        resume: bool = False,
+    ) -> TrainConfig:
+        return TrainConfig(
+            dataset=dataset,
+            selection=selection,
+            objective=objective,
+            out=out,
+            seed=run,
+            resume=resume,
+            overwrite=not resume,
+            **self.train,
+        )
+
+    def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:
+        settings = {k: v for k, v in self.evaluate.items() if k != "plan_dicp"}
+        return EvalConfig(model=model, out=out, plan=plan, seed=run, **settings)
 
     def dicp_plan_modes(self) -> tuple[bool, ...]:
         """The ``plan`` values DICP models are evaluated with (one evaluation stage each)."""
@@ -121,22 +215,21 @@ def load_experiment(
     if preset not in presets:
         raise ValueError(f"{path.stem} has no preset {preset!r} (it has {sorted(presets)})")
     paper = spec.pop("paper", {}) or {}
-    merged = _merge(_merge(DEFAULTS, spec), presets[preset])
-    unknown = set(merged) - set(DEFAULTS) - {"title", "envs", "objectives", "paper_table", "budget"}
+    merged = _merge(spec, presets[preset])
+    unknown = set(merged) - TOP_KEYS
     if unknown:
-        raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
+        raise ValueError(f"{path}: unknown keys {sorted(unknown)} (one of {sorted(TOP_KEYS)})")
+    for stage in CONFIGS:
+        if not isinstance(merged.get(stage, {}), dict):
+            raise ValueError(f"{path}: {stage} must be a mapping of settings")
+    if runs is not None:
+        merged["runs"] = int(runs)
     return Experiment(
         name=path.stem,
-        title=merged.get("title", path.stem),
+        title=merged.pop("title", path.stem),
         preset=preset,
-        envs=tuple(merged["envs"]),
-        objectives=tuple(merged["objectives"]),
-        runs=int(runs if runs is not None else merged["runs"]),
-        collect=merged["collect"],
-        filter=merged["filter"],
-        train=merged["train"],
-        evaluate=merged["evaluate"],
+        envs=tuple(merged.pop("envs", ())),
+        objectives=tuple(merged.pop("objectives", ())),
         paper=paper,
-        paper_table=merged.get("paper_table", ""),
-        budget=merged.get("budget", ""),
+        **merged,
     )

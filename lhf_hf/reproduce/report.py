@@ -57,7 +57,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "± is the std of the per-run E over paired runs (same seed and split). Paper values in "
         "parentheses.",
     ]
-    if exp.evaluate.get("plan_dicp") == "both":
+    if exp.dicp_plan_modes() == (False, True):
         lines += [
             "",
             "DICP is evaluated from the same checkpoints without planning (`DICP`) and with the "

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from lhf_hf.collection import collect
-from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
+from lhf_hf.configs import CollectConfig
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare
 from lhf_hf.filtering.run import run_filter
@@ -30,38 +30,38 @@ from .report import render_report
 from .stages import Stage, StageRunner
 
 
-def _arms(exp: Experiment) -> list[tuple[str, dict]]:
-    sweep = exp.filter.get("sweep")
-    base = {k: v for k, v in exp.filter.items() if k != "sweep"}
-    if not sweep:
-        return [("lhf", base)]
-    key, values = sweep["key"], sweep["values"]
-    return [(f"{key}={v}", {**base, key: v}) for v in values]
+def _arms(exp: Experiment) -> list[str]:
+    return [arm for arm, _ in exp.filter_arms(0)]
+
+
+#: TrainConfig fields that say where the data and the model are, not what is trained: the stage's
+#: hash covers its inputs' hashes instead.
+_TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_hub", "hub_private")
 
 
 def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
     """Every stage of ``exp`` in run order (their folders under ``work``), and
-    ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``."""
+    ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``.
+
+    A stage's hash covers its whole config (every field, defaults included: a changed default
+    re-runs what it changes) and the hashes of the stages it reads.
+    """
     stages: list[Stage] = []
     evals: dict[tuple[str, str, str], list[Stage]] = {}
-    collect_cfg = {k: v for k, v in exp.collect.items() if k != "half"}
-    train_cfg = dict(exp.train)
-    eval_cfg = {k: v for k, v in exp.evaluate.items() if k != "plan_dicp"}
     for run in range(exp.runs):
         for env in exp.envs:
             tag = f"{env} run {run}"
-            c = {"env_id": env, "seed": run, "split_seed": run, **collect_cfg}
+            collect_cfg = exp.collect_config(env, run)
 
-            def do_collect(out: Path, c=c) -> None:
+            def do_collect(out: Path, cfg=collect_cfg) -> None:
                 data = out / "data"
-                collect(CollectConfig(**c), data, resume=data.exists())
+                collect(CollectConfig.from_dict(cfg.to_dict()), data, resume=data.exists())
 
-            col = Stage(
-                "collect", f"{tag}: {c['histories']} histories x {c['steps']}", c, do_collect
-            )
+            label = f"{tag}: {collect_cfg.histories} histories x {collect_cfg.steps}"
+            col = Stage("collect", label, collect_cfg.identity(), do_collect)
             stages.append(col)
             data_stage = col
-            if exp.collect.get("half"):
+            if exp.half:
 
                 def do_half(out: Path, src=col) -> None:
                     derive_half(src.path(work) / "data", out / "data", overwrite=True)
@@ -69,46 +69,47 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                 data_stage = Stage("derive", f"{tag}: first half", {"src": col.hash}, do_half)
                 stages.append(data_stage)
             arms = []
-            for arm, f in _arms(exp):
-                fc = {"src": data_stage.hash, **f, "seed": run}
+            for arm, filter_cfg in exp.filter_arms(run):
 
-                def do_filter(out: Path, fc=fc, src=data_stage) -> None:
-                    cfg = FilterConfig(**{k: v for k, v in fc.items() if k != "src"})
+                def do_filter(out: Path, cfg=filter_cfg, src=data_stage) -> None:
                     run_filter(src.path(work) / "data", out / "selection", cfg, overwrite=True)
 
+                fc = {"src": data_stage.hash, **filter_cfg.to_dict()}
                 sel = Stage("filter", f"{tag}: {arm}", fc, do_filter)
                 stages.append(sel)
                 arms.append((arm, sel))
             for obj in exp.objectives:
                 for arm, sel in [("baseline", None), *arms]:
-                    tc = {"src": data_stage.hash, "objective": obj, "seed": run, **train_cfg}
+                    what = exp.train_config(obj, run, dataset="", selection=None, out="")
+                    tc = {k: v for k, v in what.to_dict().items() if k not in _TRAIN_PLACES}
+                    tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
 
-                    def do_train(out: Path, tc=tc, src=data_stage, sel=sel) -> None:
+                    def do_train(out: Path, obj=obj, run=run, src=data_stage, sel=sel) -> None:
                         model = out / "model"
                         resume = model.is_dir() and get_last_checkpoint(str(model)) is not None
-                        fields = {k: v for k, v in tc.items() if k not in ("src", "selection")}
-                        train(
-                            TrainConfig(
-                                dataset=str(src.path(work) / "data"),
-                                selection=str(sel.path(work) / "selection") if sel else None,
-                                out=str(model),
-                                resume=resume,
-                                overwrite=not resume,
-                                **fields,
-                            )
+                        cfg = exp.train_config(
+                            obj,
+                            run,
+                            dataset=str(src.path(work) / "data"),
+                            selection=str(sel.path(work) / "selection") if sel else None,
+                            out=str(model),
+                            resume=resume,
                         )
+                        train(cfg)
 
                     tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train)
                     stages.append(tr)
                     for plan in exp.dicp_plan_modes() if obj == "dicp" else (False,):
-                        ec = {"model": tr.hash, "plan": plan, "seed": run, **eval_cfg}
+                        what = exp.eval_config(run, model="", out="", plan=plan).to_dict()
+                        ec = {**{k: v for k, v in what.items() if k != "out"}, "model": tr.hash}
 
-                        def do_eval(out: Path, ec=ec, tr=tr) -> None:
-                            fields = {k: v for k, v in ec.items() if k != "model"}
+                        def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:
                             model = str(tr.path(work) / "model")
-                            evaluate(EvalConfig(model=model, out=str(out / "eval"), **fields))
+                            evaluate(
+                                exp.eval_config(run, model=model, out=str(out / "eval"), plan=plan)
+                            )
 
                         what = f"{obj.upper()}{' + plan' if plan else ''} {arm}"
                         ev = Stage("evaluate", f"{tag}: {what}", ec, do_eval)
@@ -141,7 +142,7 @@ def reproduce(
         runner.run(stage)
     cells = []
     for env in exp.envs:
-        for arm, _ in _arms(exp):
+        for arm in _arms(exp):
             base = [
                 str(s.path(work) / "eval")
                 for o in exp.objectives

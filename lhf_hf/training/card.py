@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from huggingface_hub import EvalResult, ModelCard, ModelCardData
+
 from lhf_hf.utils.io import save_figure_atomic, write_text_atomic
 from lhf_hf.utils.templates import template_path
 
@@ -18,10 +20,10 @@ NO_EVAL = "Not evaluated yet: run `lhf evaluate --model <this folder> --env <env
 
 
 def plot_loss(log_history: list[dict], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # deferred: 0.5 s, paid only when a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: after matplotlib.use("Agg")
 
     rows = [r for r in log_history if "loss" in r]
     fig, ax = plt.subplots(figsize=(6, 3.4), dpi=120)
@@ -55,8 +57,6 @@ def eval_section(evaluations: list[dict]) -> str:
 
 
 def model_index(evaluations: list[dict]) -> list:
-    from huggingface_hub import EvalResult
-
     out = []
     for e in evaluations:
         name = f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}{', planning' if e['plan'] else ''})"
@@ -77,8 +77,6 @@ def model_index(evaluations: list[dict]) -> list:
 def render_model_card(
     config, provenance: dict, load_path: str, evaluations: list[dict] | None = None
 ) -> str:
-    from huggingface_hub import ModelCard, ModelCardData
-
     train = provenance["train"]
     ds = provenance["dataset"]
     sel = provenance.get("selection")

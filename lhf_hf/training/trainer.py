@@ -15,6 +15,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
+from huggingface_hub import HfApi
 from transformers import Trainer, TrainerCallback, TrainingArguments, set_seed
 from transformers.trainer_utils import get_last_checkpoint
 
@@ -90,7 +91,6 @@ class _PushCheckpoints(TrainerCallback):
     def on_save(self, args, state, control, **kwargs):
         if not state.is_world_process_zero:
             return
-        from huggingface_hub import HfApi
 
         HfApi().upload_folder(
             repo_id=args.hub_model_id,

@@ -20,6 +20,24 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
 
+from huggingface_hub import (
+    CommitOperationAdd,
+    CommitOperationDelete,
+    HfApi,
+    constants,
+    get_token,
+    snapshot_download,
+)
+from huggingface_hub.errors import (
+    GatedRepoError,
+    HfHubHTTPError,
+    HFValidationError,
+    LocalEntryNotFoundError,
+    RepositoryNotFoundError,
+    RevisionNotFoundError,
+)
+from huggingface_hub.utils import validate_repo_id as _validate
+
 from lhf_hf import constants as C
 
 #: Never uploaded: Trainer's intermediate checkpoints (optimizer state), hidden and private files,
@@ -54,9 +72,6 @@ def parse_hub_ref(spec: str) -> HubRef | None:
 
 
 def validate_repo_id(repo_id: str) -> str:
-    from huggingface_hub.errors import HFValidationError
-    from huggingface_hub.utils import validate_repo_id as _validate
-
     if parse_hub_ref(repo_id) is None or "@" in repo_id:
         raise HubError(f"invalid repo id {repo_id!r}: expected ORG/NAME (letters, digits, - _ .)")
     try:
@@ -67,8 +82,6 @@ def validate_repo_id(repo_id: str) -> str:
 
 
 def endpoint() -> str:
-    from huggingface_hub import constants
-
     return constants.ENDPOINT
 
 
@@ -97,16 +110,6 @@ def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
 
 def download(ref: HubRef, repo_type: str) -> Path:
     """``snapshot_download`` with errors that say what is wrong."""
-    from huggingface_hub import snapshot_download
-    from huggingface_hub.errors import (
-        GatedRepoError,
-        HfHubHTTPError,
-        HFValidationError,
-        LocalEntryNotFoundError,
-        RepositoryNotFoundError,
-        RevisionNotFoundError,
-    )
-
     where = f"{repo_type} repo {ref} on {endpoint()}"
     try:
         return Path(snapshot_download(ref.repo_id, repo_type=repo_type, revision=ref.revision))
@@ -153,8 +156,6 @@ def upload_files(root: Path) -> list[str]:
 
 
 def _require_token(token: str | None) -> None:
-    from huggingface_hub import constants, get_token
-
     if (
         token is None
         and get_token() is None
@@ -189,9 +190,6 @@ def push_folder(
     ``{repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises ``HubError`` on
     any failure (a success is only reported once the commit and the tag exist).
     """
-    from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
-    from huggingface_hub.errors import HfHubHTTPError
-
     _require_token(token)
     branch = revision or "main"
     files = upload_files(path)

@@ -8,6 +8,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -53,8 +54,6 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> None:
 
 
 def _json_default(o):
-    import numpy as np
-
     if isinstance(o, np.integer):
         return int(o)
     if isinstance(o, np.floating):
@@ -92,6 +91,6 @@ def save_figure_atomic(fig, path: str | os.PathLike) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # deferred: 0.5 s; the figure's owner imported it already
 
         plt.close(fig)

@@ -8,14 +8,14 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from lhf_hf.collection.batched_ppo import (
-    ManualGradients,
     Rollout,
     StackedPolicy,
-    _ppo_loss,
     gae,
     make_optimizer,
-    ppo_update,
+    ppo_loss,
 )
+from lhf_hf.collection.ppo_backends import ppo_update
+from lhf_hf.collection.ppo_manual import ManualGradients
 from lhf_hf.envs import make
 
 from .rollouts import random_rollout
@@ -186,7 +186,7 @@ def test_manual_gradients_equal_autograd():
     adv = data.advantages
     adv = (adv - adv.mean(1, keepdim=True)) / (adv.std(1, keepdim=True) + 1e-8)
     args = (data.obs, data.actions, adv, data.old_logp, data.returns)
-    _ppo_loss(policy, *args).backward()
+    ppo_loss(policy, *args).backward()
     expected = [p.grad.clone() for p in policy.parameters()]
     with torch.no_grad():
         logits, _ = policy(data.obs)

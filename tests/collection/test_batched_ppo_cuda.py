@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer, ppo_update
+from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer
+from lhf_hf.collection.ppo_backends import ppo_update
 
 from .rollouts import random_rollout
 

@@ -8,7 +8,7 @@ import pytest
 
 def test_batched_ppo_imports_without_sb3_or_datasets():
     code = (
-        "import sys; import lhf_hf.collection.batched_ppo; "
+        "import sys; import lhf_hf.collection.ppo_backends; "
         "heavy = [m for m in ('stable_baselines3', 'datasets', 'gymnasium') if m in sys.modules]; "
         "print(heavy)"
     )

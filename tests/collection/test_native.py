@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from lhf_hf.collection import native
-from lhf_hf.collection.batched_ppo import StackedPolicy, make_optimizer, ppo_update
+from lhf_hf.collection.batched_ppo import StackedPolicy, make_optimizer
+from lhf_hf.collection.ppo_backends import ppo_update
 
 from .rollouts import random_rollout
 

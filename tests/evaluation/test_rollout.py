@@ -149,7 +149,9 @@ def test_evaluate_errors(tmp_path):
         evaluate(EvalConfig(model=str(tmp_path / "none"), out=str(tmp_path / "e")))
     with pytest.raises(ValueError, match="episodes"):
         EvalConfig(model="m", out="o", episodes=0)
-    with pytest.raises(ValueError, match="context must be 'cache', 'recompute' or 'window'"):
+    with pytest.raises(
+        ValueError, match=r"context must be one of \('cache', 'recompute', 'window'\)"
+    ):
         EvalConfig(model="m", out="o", context="fast")
 
 
@@ -218,8 +220,11 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
         == 1
     )
     assert "dynamics heads" in capsys.readouterr().err
-    # --context / --no-cache reach the rollout and the results (same function: same returns)
-    for flags, mode in [(["--no-cache"], "recompute"), (["--context", "window"], "window")]:
+    # --context reaches the rollout and the results (same function: same returns)
+    for flags, mode in [
+        (["--context", "recompute"], "recompute"),
+        (["--context", "window"], "window"),
+    ]:
         out = tmp_path / f"e-{mode}"
         args = ["evaluate", "--model", str(tmp_path / "m"), "--episodes", "2", "--out", str(out)]
         assert main(args + flags) == 0

@@ -281,9 +281,22 @@ def test_dicp_forward_needs_actions():
         model_for(config)(**batch)
 
 
-def test_train_config_lists_match_the_model_family():
-    from lhf_hf.configs import train as train_config
-    from lhf_hf.modeling import OBJECTIVES, PRESETS
+@pytest.mark.parametrize(
+    "fields, field",
+    [
+        ({"objective": "bc"}, "objective"),
+        ({"objective": "dpt", "label_positions": "query"}, "label_positions"),
+        ({"objective": "ad", "label_positions": "every"}, "label_positions"),
+        ({"objective": "ad", "context_length": 0}, "context_length"),
+        ({"objective": "dicp", "dynamics_coef": -1.0}, "dynamics_coef"),
+    ],
+)
+def test_train_config_and_model_config_share_the_model_rules(fields, field):
+    """TrainConfig refuses what ICRLConfig refuses, with the same message (one set of rules)."""
+    from lhf_hf.configs import TrainConfig
 
-    assert train_config.OBJECTIVES == OBJECTIVES
-    assert set(train_config.MODEL_PRESETS) == set(PRESETS)
+    with pytest.raises(ValueError, match=f"ICRLConfig.{field} ") as model_err:
+        icrl_config("tiny", **fields)
+    with pytest.raises(ValueError, match=f"TrainConfig.{field} ") as train_err:
+        TrainConfig(dataset="d", out="o", **fields)
+    assert str(model_err.value).split(" ", 1)[1] == str(train_err.value).split(" ", 1)[1]

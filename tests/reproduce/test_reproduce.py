@@ -9,15 +9,16 @@ import numpy as np
 import pytest
 import yaml
 
+from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
 from lhf_hf.reproduce import experiment_names, load_experiment, plan_stages, reproduce
 from lhf_hf.reproduce.report import verdict
-from lhf_hf.reproduce.reproduce import _arms
 
 TINY = {
     "title": "tiny",
     "paper_table": "a test",
     "envs": ["darkroom"],
     "objectives": ["ad"],
+    "collect": {"collector": "batched"},
     "paper": {"darkroom": {"ad": 25.1}},
     "presets": {
         "quick": {
@@ -72,6 +73,51 @@ def test_spec_errors(tmp_path):
         load_experiment(_spec(tmp_path, {**TINY, "evaluate": {"plan_dicp": "yes"}}, "pl"), "quick")
 
 
+@pytest.mark.parametrize(
+    "stage, settings, message",
+    [
+        ("train", {"lerning_rate": 1e-3}, "train.lerning_rate is not a setting of this stage"),
+        ("collect", {"seed": 3}, "collect.seed is not a setting"),  # the run sets it
+        ("evaluate", {"plan": True}, "evaluate.plan is not a setting"),  # plan_dicp says it
+        ("collect", {"histories": 0}, "CollectConfig.histories must be >= 1"),
+        ("train", {"lr": -1.0}, "TrainConfig.lr must be > 0"),
+        ("filter", {"strategy": "greedy"}, "FilterConfig.strategy must be one of"),
+        ("evaluate", {"context": "all"}, "EvalConfig.context must be one of"),
+        ("filter", {"sweep": {"key": "lamda", "values": [1]}}, "sweep.key 'lamda'"),
+    ],
+)
+def test_a_bad_stage_setting_fails_at_load(tmp_path, stage, settings, message):
+    """Typos and bad values in any stage, top level or preset, fail before anything runs."""
+    top = json.loads(json.dumps(TINY))
+    top[stage] = {**top.get(stage, {}), **settings}
+    for key in settings:  # the preset must not override what is tested at the top level
+        top["presets"]["quick"].get(stage, {}).pop(key, None)
+    with pytest.raises(ValueError, match=message):
+        load_experiment(_spec(tmp_path, top, "top"), "quick")
+    preset = json.loads(json.dumps(TINY))
+    preset["presets"]["quick"][stage] = {**preset["presets"]["quick"].get(stage, {}), **settings}
+    with pytest.raises(ValueError, match=message):
+        load_experiment(_spec(tmp_path, preset, "preset"), "quick")
+
+
+def test_stage_configs_take_the_config_defaults(tmp_path):
+    """What a spec leaves out is the config dataclass's default: one set of defaults."""
+    exp = load_experiment(_spec(tmp_path, TINY), "quick")
+    col = exp.collect_config("darkroom", 1)
+    assert isinstance(col, CollectConfig)
+    assert (col.seed, col.split_seed, col.collector, col.protocol) == (1, 1, "batched", "paper")
+    assert col.noisy_fraction == CollectConfig(env_id="darkroom").noisy_fraction
+    assert col.tasks == CollectConfig(env_id="darkroom", tasks="train:2", split_seed=1).tasks
+    ((arm, flt),) = exp.filter_arms(1)
+    assert arm == "lhf" and flt == FilterConfig(seed=1)
+    tr = exp.train_config("ad", 1, dataset="d", selection=None, out="o")
+    assert tr == TrainConfig(dataset="d", objective="ad", out="o", seed=1, overwrite=True,
+                             preset="tiny", max_steps=4, batch_size=4, save_steps=4)  # fmt: skip
+    assert exp.eval_config(1, model="m", out="o", plan=False) == EvalConfig(
+        model="m", out="o", seed=1, episodes=2
+    )
+
+
 def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path):
     dicp = {**TINY, "objectives": ["ad", "dicp"], "paper": {"darkroom": {"ad": 25.1, "dicp": 15.2}}}
     both = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": "both"}}, "b"))
@@ -111,13 +157,11 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
 
 def test_sweep_arms_and_verdicts():
     exp = load_experiment("darkroom-lambda", "quick")
-    arms = _arms(exp)
+    arms = exp.filter_arms(2)
     assert [a for a, _ in arms] == ["lam=0", "lam=0.5", "lam=1", "lam=2", "lam=1000"]
-    assert [f["lam"] for _, f in arms] == [0, 0.5, 1, 2, 1000]
-    assert all(f["strategy"] == "linear" and "sweep" not in f for _, f in arms)
-    assert _arms(load_experiment("darkroom-main", "quick")) == [
-        ("lhf", {"strategy": "linear", "lam": 1.0, "alpha": 0.125})
-    ]
+    assert [f.lam for _, f in arms] == [0, 0.5, 1, 2, 1000]
+    assert all(f.strategy == "linear" and f.seed == 2 for _, f in arms)
+    assert load_experiment("darkroom-main", "quick").filter_arms(0) == [("lhf", FilterConfig())]
     assert verdict(0.10, 0.05) == "helps"
     assert verdict(-0.10, 0.05) == "hurts"
     assert verdict(0.03, 0.05).startswith("no clear effect")

@@ -1,0 +1,132 @@
+"""What the ``lhf`` commands take besides the configs they run: output folders, inputs, Hub
+targets.  With the configs, these dataclasses are where every command-line flag is defined (its type,
+choices, default and help text): ``lhf_hf.cli.flags`` generates the flags from them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+ExperimentPreset = Literal["quick", "cpu", "paper"]
+EXPERIMENT_PRESETS: tuple[str, ...] = get_args(ExperimentPreset)
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """Where a command writes, and what it may do with what is there already.
+
+    out: the folder to write.
+    resume: continue an interrupted run in ``out``.
+    overwrite: replace what ``out`` holds.
+    progress: show progress bars.
+    """
+
+    out: str
+    resume: bool = False
+    overwrite: bool = False
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.resume and self.overwrite:
+            raise ValueError("resume and overwrite exclude each other")
+
+
+@dataclass(frozen=True)
+class FilterInputs:
+    """What ``lhf filter`` reads, and the dataset it may also write.
+
+    dataset: history dataset folder or Hub dataset repo ``ORG/NAME[@REV]``.
+    materialize: also write the selected histories (with their repeats) as a dataset in this folder.
+    """
+
+    dataset: str
+    materialize: str | None = None
+
+
+DeriveOp = Literal["half"]
+
+
+@dataclass(frozen=True)
+class DeriveOptions:
+    """A dataset derived from a history dataset.
+
+    op: ``half``: the first ``fraction`` of every history, in whole episodes (the paper's
+        half-history table).
+    src: the source history dataset folder.
+    fraction: the part of each history kept.
+    """
+
+    op: DeriveOp
+    src: str
+    fraction: float = 0.5
+
+
+@dataclass(frozen=True)
+class CompareOptions:
+    """Evaluation runs to compare, paired by backbone.
+
+    baseline: evaluation folders of models trained without LHF.
+    lhf: evaluation folders of models trained with LHF.
+    out: folder for ``compare.md``, ``compare.json`` and ``compare.png``; None prints the table only.
+    """
+
+    baseline: list[str]
+    lhf: list[str]
+    out: str | None = None
+
+
+@dataclass(frozen=True)
+class PushOptions:
+    """One artifact folder pushed to a Hub repo.
+
+    path: the artifact folder (``lhf collect`` / ``lhf filter`` / ``lhf train`` output).
+    repo_id: the target repo ``ORG/NAME`` (created if absent).
+    private: create the repo private.
+    revision: the branch to commit to (created if absent); None = main.
+    token: a write token; None = the logged-in one (``hf auth login`` or ``HF_TOKEN``).
+    message: the commit message; None = one naming the artifact.
+    """
+
+    path: str
+    repo_id: str
+    private: bool = False
+    revision: str | None = None
+    token: str | None = None
+    message: str | None = None
+
+
+@dataclass(frozen=True)
+class ReproduceOptions:
+    """One paper experiment, end to end.
+
+    experiment: an experiment spec: a name (a file of ``lhf_hf/reproduce/experiments``, e.g.
+        ``darkroom-main``) or the path of a yaml file.
+    preset: the budget: ``quick`` (CI-sized), ``cpu`` (a couple of hours on 2 cores) or ``paper``.
+    runs: independent runs; None = the preset's.
+    out: report folder; None = ``results/EXPERIMENT-PRESET``.
+    work: the stage cache (datasets, checkpoints, evaluations), reused by later runs.
+    """
+
+    experiment: str
+    preset: ExperimentPreset = "quick"
+    runs: int | None = None
+    out: str | None = None
+    work: str = "runs/reproduce"
+
+
+@dataclass(frozen=True)
+class EnvsOptions:
+    """What ``lhf envs`` shows.
+
+    json: print JSON instead of a table.
+    oracle: also roll out the oracle on each env's test tasks (gridworlds: the exact oracle;
+        Meta-World: its scripted policy with the goal revealed).
+    split_seed: the train/test split seed of ``oracle``.
+    metaworld_tasks: test tasks per Meta-World env under ``oracle`` (each takes ~1 s).
+    """
+
+    json: bool = False
+    oracle: bool = False
+    split_seed: int = 0
+    metaworld_tasks: int = 2
