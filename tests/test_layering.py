@@ -94,6 +94,23 @@ def test_imports_go_down_the_layers(path):
             )
 
 
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_every_function_level_import_says_why(path):
+    """Any import inside a function (lhf_hf's or a third party's) is deferred on purpose: an
+    optional extra, or a heavy library a light path must not pay for; its line says which."""
+    lines = path.read_text().splitlines()
+    for fn in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                text = " ".join(lines[node.lineno - 1 : node.end_lineno])
+                assert "# deferred:" in text, (
+                    f"{path.name}:{node.lineno}: `{lines[node.lineno - 1].strip()}` inside a "
+                    "function without a `# deferred: <why>` comment"
+                )
+
+
 def test_the_layering_test_sees_a_back_edge(tmp_path):
     """The checker itself: an envs module importing training is reported."""
     bad = PACKAGE / "envs" / "_layering_probe.py"
