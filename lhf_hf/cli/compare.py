@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.evaluation import compare  # deferred: heavy (torch, matplotlib)
 
     options = CompareOptions(**values(args, args.fields))
-    r = compare(options.baseline, options.lhf, options.out)
+    r = compare(options.baseline, options.lhf, options.out, options.overwrite)
     print(r["table"])
     if options.out:
         print(f"\ntable: {options.out}/compare.md  figure: {options.out}/compare.png")

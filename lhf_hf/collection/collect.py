@@ -12,6 +12,7 @@ import os
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from contextlib import ExitStack
 from datetime import timedelta
 from multiprocessing import get_context
 from pathlib import Path
@@ -24,9 +25,9 @@ from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.histories.reader import HistoryDataset, load_histories
 from lhf_hf.histories.writer import (
+    claim_dataset,
     finalize,
     is_complete,
-    prepare_output,
     task_done,
     write_task,
 )
@@ -218,16 +219,20 @@ def collect(
         check_device(config.device)  # before anything is written
         config.ppo_backend = resolve_ppo_backend(config)  # stored resolved: part of the identity
     ranks = _Ranks()
-    complete = resume and is_complete(
-        out
-    )  # every rank decides the same way (no rank left at a barrier)
-    if ranks.rank == 0:
-        # a complete dataset is only re-opened: same config, or a clear error
-        prepare_output(out, config.identity(), resume=resume, overwrite=overwrite)
-    ranks.barrier()
-    if complete:
-        return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]
+    # every rank decides the same way (no rank left at a barrier)
+    complete = resume and is_complete(out)
+    with ExitStack() as claim:
+        if ranks.rank == 0:  # rank 0 holds the folder; a complete dataset is only re-opened
+            claim.enter_context(
+                claim_dataset(out, config.identity(), resume=resume, overwrite=overwrite)
+            )
+        ranks.barrier()
+        if complete:
+            return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]
+        return _collect_into(config, out, ranks, progress)
 
+
+def _collect_into(config: CollectConfig, out: Path, ranks: _Ranks, progress: bool):
     tasks = list(config.tasks)
     RUNNERS[config.collector](config, out, tasks, ranks, progress)
     ranks.barrier()

@@ -69,11 +69,13 @@ class CompareOptions:
     baseline: evaluation folders of models trained without LHF.
     lhf: evaluation folders of models trained with LHF.
     out: folder for ``compare.md``, ``compare.json`` and ``compare.png``; None prints the table only.
+    overwrite: replace the comparison ``out`` holds.
     """
 
     baseline: list[str]
     lhf: list[str]
     out: str | None = None
+    overwrite: bool = False
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ class EvalConfig:
         sliding-window KV cache (fast), ``recompute`` the same function recomputed over its receptive
         field every step (the exactness and speed reference), ``window`` the reference code's
         protocol (only the last K transitions re-encoded from scratch every step).
+    overwrite: replace the evaluation ``out`` holds (without it, an existing one is an error).
     """
 
     model: str
@@ -37,6 +38,7 @@ class EvalConfig:
     plan: bool = False
     seed: int = 0
     context: Context = "cache"
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         if self.episodes < 1:

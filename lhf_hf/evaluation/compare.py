@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+from lhf_hf.utils.outputs import output_folder
 
 from .evaluate import RESULTS_FILE
 from .plots import plot_comparison
@@ -46,7 +47,56 @@ def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
     return out
 
 
-def compare(baseline: list[str], lhf: list[str], out: str | Path | None = None) -> dict:
+def _protocol(r: dict) -> str:
+    """The context protocol of a run: ``cache`` and ``recompute`` compute the same function (tested
+    equal), ``window`` another one (the reference's re-encoded window)."""
+    return "window" if r["config"].get("context") == "window" else "streaming"
+
+
+def _tasks_key(r: dict) -> tuple:
+    return (r.get("split_seed"), tuple(r.get("tasks") or ()))
+
+
+def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
+    """Refuse runs that measure different things: another context protocol, or an LHF run whose
+    split and task set are not those of its paired baseline run (E pairs runs in the given order)."""
+    protocols = {_protocol(r) for r in runs}
+    if len(protocols) != 1:
+        modes = sorted({f"{r['config'].get('context', 'cache')} ({r['_path']})" for r in runs})
+        raise ValueError(f"compare: the runs use different context protocols: {modes}")
+    for backbone in sorted(base):
+        b, f = base[backbone], filt[backbone]
+        if len(b) == len(f):
+            for rb, rf in zip(b, f, strict=True):
+                if _tasks_key(rb) != _tasks_key(rf):
+                    raise ValueError(
+                        f"compare: {backbone} runs paired in the given order differ in split or "
+                        f"tasks: {rb['_path']} (split {rb.get('split_seed')}, tasks "
+                        f"{rb.get('tasks')}) vs {rf['_path']} (split {rf.get('split_seed')}, tasks "
+                        f"{rf.get('tasks')}); give the runs in the same order on both sides"
+                    )
+        elif {_tasks_key(r) for r in b} != {_tasks_key(r) for r in f}:
+            raise ValueError(
+                f"compare: {backbone} baseline and LHF runs are on different splits or task sets"
+            )
+
+
+def compare(
+    baseline: list[str], lhf: list[str], out: str | Path | None = None, overwrite: bool = False
+) -> dict:
+    """E per backbone of the ``lhf`` runs over the ``baseline`` runs (module docstring); with
+    ``out``, also ``compare.md``, ``compare.json`` and ``compare.png`` there (an existing
+    comparison is replaced only with ``overwrite``)."""
+    inputs = [*baseline, *lhf]
+    if out is None:
+        return _compare(baseline, lhf, None)
+    with output_folder(
+        out, "comparison", overwrite=overwrite, inputs=inputs, legacy=["compare.json"]
+    ):
+        return _compare(baseline, lhf, out)
+
+
+def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dict:
     base, filt = _group(baseline, "baseline"), _group(lhf, "--lhf")
     runs = [r for rs in (*base.values(), *filt.values()) for r in rs]
     envs = {r["env_id"] for r in runs}
@@ -59,6 +109,7 @@ def compare(baseline: list[str], lhf: list[str], out: str | Path | None = None) 
         raise ValueError(
             f"compare: backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
         )
+    _check_comparable(runs, base, filt)
     rows, curves = [], {}
     for backbone in sorted(base):
         b = np.array([r["mean_curve"] for r in base[backbone]])  # (runs, E)

@@ -16,6 +16,7 @@ from lhf_hf.training.card import MODEL_EVALS_FILE, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
 from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .plots import plot_eval_curve
@@ -50,6 +51,13 @@ def curve_summary(returns: np.ndarray) -> dict:
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
     to the checkpoint's card.  Returns the results dict."""
+    with output_folder(
+        cfg.out, "evaluation", overwrite=cfg.overwrite, inputs=[cfg.model], legacy=[RESULTS_FILE]
+    ):
+        return _evaluate_into(cfg, progress)
+
+
+def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
     model_dir = resolve(cfg.model, "model", "model checkpoint")
     model = load_model(str(model_dir))
     mc = model.config

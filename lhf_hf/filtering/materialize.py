@@ -3,6 +3,7 @@ dropping at the frames level (``filter_frames``)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import datasets
@@ -61,11 +62,18 @@ def filter_frames(frames: datasets.Dataset, keep_history_indices) -> datasets.Da
 
 
 def materialize(
-    ds, selection: Selection, out: str | Path, *, overwrite: bool = False, progress: bool = True
+    ds,
+    selection: Selection,
+    out: str | Path,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    inputs: Iterable[str | Path | None] = (),
 ):
     """Write the selection as a full dataset in our layout (repeated histories as their own slices).
 
     Every task keeps its number of histories; the card says how the dataset was derived.
+    ``inputs``: folders ``out`` may not be or touch besides the source dataset (the selection's).
     """
     _check_source(ds, selection)
     counts = selection.counts()
@@ -103,5 +111,6 @@ def materialize(
         steps=ds.lhf["steps_per_history"],
         overwrite=overwrite,
         progress=progress,
+        inputs=inputs,
         identity={"op": "lhf", "filter": cfg.to_dict()},
     )

@@ -9,6 +9,7 @@ from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
 from lhf_hf.histories.reader import load_histories
 from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.outputs import output_folder
 
 from .card import render_selection_card
 from .materialize import materialize as materialize_histories
@@ -31,8 +32,13 @@ def run_filter(
     Returns the summary (counts, learner shares, mean returns of selected vs rejected, timings).
     """
     out = Path(out)
-    if (out / CONFIG_FILE).exists() and not overwrite:
-        raise FileExistsError(f"{out} already holds a selection; pass --overwrite to replace it")
+    with output_folder(
+        out, "selection", overwrite=overwrite, inputs=[dataset, materialize], legacy=[CONFIG_FILE]
+    ):
+        return _filter_into(dataset, out, config, materialize, overwrite, progress)
+
+
+def _filter_into(dataset, out: Path, config, materialize, overwrite: bool, progress: bool) -> dict:
     ds = load_histories(dataset)
     start = time.perf_counter()
     selection = filter_histories(ds, config)
@@ -51,7 +57,7 @@ def run_filter(
     if materialize is not None:
         start = time.perf_counter()
         new = materialize_histories(
-            ds, selection, materialize, overwrite=overwrite, progress=progress
+            ds, selection, materialize, overwrite=overwrite, progress=progress, inputs=[out]
         )
         summary["materialize_seconds"] = round(time.perf_counter() - start, 3)
         (new.root / "meta" / PLOT_FILE).write_bytes((out / PLOT_FILE).read_bytes())

@@ -28,9 +28,16 @@ def linear(scores: np.ndarray, alpha: float) -> np.ndarray:
 
 
 def softmax(scores: np.ndarray, alpha: float) -> np.ndarray:
-    """U_soft = softmax(U / alpha) over the task, then min-max normalised."""
-    z = scores / alpha
-    e = np.exp(z - z.max())  # shift for stability; the softmax is unchanged
+    """U_soft = softmax(U / alpha) over the task, then min-max normalised.
+
+    Computed as exp((U - max U) / alpha): the shift leaves the softmax unchanged, and the
+    difference is taken before dividing, so a tiny temperature cannot make inf - inf = NaN.  A
+    difference that overflows to -inf gives exp = 0, which is the exact limit alpha -> 0 (the best
+    history P = 1, the others 0); a huge temperature gives the limit alpha -> inf (all P = 1).
+    """
+    with np.errstate(over="ignore"):  # (U - max U) / alpha -> -inf is the intended limit
+        z = (scores - scores.max()) / alpha  # (n,), <= 0, the best history 0
+    e = np.exp(z)
     return _minmax(e / e.sum())
 
 

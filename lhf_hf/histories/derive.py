@@ -7,7 +7,7 @@ histories?", first 50%).  LHF materialisation (``lhf_hf.filtering.materialize``)
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -17,7 +17,7 @@ from lhf_hf.utils.versions import library_versions
 
 from .reader import HistoryDataset, load_histories
 from .schema import TaskHistories
-from .writer import finalize, is_complete, prepare_output, task_done, write_task
+from .writer import claim_dataset, finalize, is_complete, task_done, write_task
 
 
 def write_derived(
@@ -31,21 +31,28 @@ def write_derived(
     overwrite: bool = False,
     resume: bool = False,
     progress: bool = True,
+    inputs: Iterable[str | Path | None] = (),
 ) -> HistoryDataset:
     """Write ``transform(task, histories)`` for every task of ``source`` as a new dataset at ``out``.
 
     ``derived`` (op, description, ...) is stored as ``info.json["lhf"]["derived_from"]`` together
-    with the source's path, fingerprint and collection config.
+    with the source's path, fingerprint and collection config.  ``out`` may not be, contain or lie
+    in the source or any of ``inputs``.
     """
-    horizon = source.horizon
     tasks = [int(t) for t in source.lhf["tasks"]]
     H = source.lhf["histories_per_task"]
     identity = {**identity, "source_fingerprint": source.fingerprint}
     out = Path(out)
-    if resume and is_complete(out):
-        prepare_output(out, identity, resume=True)
-        return load_histories(out)
-    prepare_output(out, identity, resume=resume, overwrite=overwrite)
+    with claim_dataset(
+        out, identity, resume=resume, overwrite=overwrite, inputs=[source.root, *inputs]
+    ):
+        if resume and is_complete(out):
+            return load_histories(out)
+        return _write_derived(source, out, transform, derived, tasks, H, steps, progress)
+
+
+def _write_derived(source, out, transform, derived, tasks, H, steps, progress) -> HistoryDataset:
+    horizon = source.horizon
     todo = [p for p in range(len(tasks)) if not task_done(out, p, H * steps)]
 
     def one(p: int) -> None:

@@ -18,6 +18,8 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -28,6 +30,7 @@ import pyarrow.parquet as pq
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
 from lhf_hf.utils.io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
+from lhf_hf.utils.outputs import OutputError, output_folder
 
 from .card import write_card
 from .reader import load_histories
@@ -36,8 +39,8 @@ from .schema import TaskHistories, episodes_table, features, frames_table, histo
 NUMERIC_STATS = (C.OBS, C.ACTION, C.REWARD, C.NEXT_OBS, C.OPTIMAL_ACTION)
 
 
-class OutputExistsError(FileExistsError):
-    """``--out`` holds something that this run must not silently reuse or replace."""
+#: ``--out`` holds something that this run must not silently reuse or replace (the policy's error).
+OutputExistsError = OutputError
 
 
 def data_path(position: int) -> str:
@@ -55,45 +58,43 @@ def _diff(a: dict, b: dict) -> list[str]:
     return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in keys if a.get(k) != b.get(k)]
 
 
-def prepare_output(
-    root: str | Path, identity: dict, *, resume: bool = False, overwrite: bool = False
-) -> Path:
-    """Create ``root`` for a run with config ``identity``, or check that it may be resumed/replaced.
+#: Files of a dataset folder written before output markers existed (``utils.outputs``).
+DATASET_FILES = (C.CONFIG_PATH, C.INFO_PATH)
 
-    Refuses (``OutputExistsError``) to reuse a non-empty folder unless ``resume`` with the *same*
-    identity, and to delete a folder that is not an lhf dataset even with ``overwrite``.
-    """
+
+@contextmanager
+def claim_dataset(
+    root: str | Path,
+    identity: dict,
+    *,
+    resume: bool = False,
+    overwrite: bool = False,
+    inputs: Iterable[str | Path | None] = (),
+) -> Iterator[Path]:
+    """Hold ``root`` for writing the dataset of config ``identity`` (``utils.outputs`` policy: a
+    non-empty folder must be an lhf dataset, continued with ``resume`` or replaced with
+    ``overwrite``; never an input); a resumed one must have been started with the same identity."""
     root = Path(root)
-    config_file = root / C.CONFIG_PATH
-    if root.exists() and any(root.iterdir()):
-        ours = config_file.exists() or (root / C.INFO_PATH).exists()
-        if overwrite:
-            if not ours:
-                raise OutputExistsError(
-                    f"{root} is not empty and is not an lhf dataset; refusing to delete it"
-                )
-            shutil.rmtree(root)
-        else:
-            if not config_file.exists():
-                raise OutputExistsError(
-                    f"{root} is not empty and holds no lhf collection; choose another --out"
-                )
-            old = json.loads(config_file.read_text())
-            diff = _diff(old, identity)
+    with output_folder(
+        root,
+        "dataset",
+        overwrite=overwrite,
+        resume=resume,
+        inputs=inputs,
+        legacy=DATASET_FILES,
+        resumable=True,
+    ):
+        config_file = root / C.CONFIG_PATH
+        if resume and config_file.exists():
+            diff = _diff(json.loads(config_file.read_text()), identity)
             if diff:
                 raise OutputExistsError(
                     f"{root} holds a collection with a different config ({'; '.join(diff)}); "
                     "use another --out, or --overwrite to replace it"
                 )
-            if not resume:
-                raise OutputExistsError(
-                    f"{root} already holds this collection; pass --resume to continue it "
-                    "(finished tasks are kept) or --overwrite to start again"
-                )
-            return root
-    root.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(identity, config_file)
-    return root
+        else:
+            write_json_atomic(identity, config_file)
+        yield root
 
 
 def _partial_stats(table: pa.Table) -> dict:

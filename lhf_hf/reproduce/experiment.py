@@ -43,7 +43,7 @@ SET_BY_RUN = {
         "push_to_hub",
         "hub_private",
     },  # fmt: skip
-    "evaluate": {"model", "out", "plan", "seed"},
+    "evaluate": {"model", "out", "plan", "seed", "overwrite"},
 }
 #: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
 #: how DICP is evaluated.
@@ -184,7 +184,8 @@ class Experiment:
 
     def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:
         settings = {k: v for k, v in self.evaluate.items() if k != "plan_dicp"}
-        return EvalConfig(model=model, out=out, plan=plan, seed=run, **settings)
+        # a stage folder is the cache's own: a half-written evaluation in it is replaced
+        return EvalConfig(model=model, out=out, plan=plan, seed=run, overwrite=True, **settings)
 
     def dicp_plan_modes(self) -> tuple[bool, ...]:
         """The ``plan`` values DICP models are evaluated with (one evaluation stage each)."""

@@ -23,6 +23,7 @@ from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
 from lhf_hf.training.trainer import get_last_checkpoint
 from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .experiment import Experiment, load_experiment
@@ -136,6 +137,17 @@ def reproduce(
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
         f"work folder {work}, report in {out}"
     )
+    # The report folder is regenerated from the stage cache: an earlier report of ours is replaced
+    # (and put back if this run fails); someone else's folder, or the cache itself, is refused.
+    with output_folder(out, "report", overwrite=True, inputs=[work], legacy=REPORT_FILES):
+        return _run(exp, stages, evals, work, out, echo)
+
+
+#: Files of a report folder written before output markers existed (``utils.outputs``).
+REPORT_FILES = ("results.json", "report.md")
+
+
+def _run(exp: Experiment, stages: list[Stage], evals: dict, work: Path, out: Path, echo) -> Path:
     t0 = time.perf_counter()
     runner = StageRunner(work, total=len(stages), echo=echo)
     for stage in stages:
@@ -151,7 +163,7 @@ def reproduce(
             filt = [
                 str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, arm, o)]
             ]
-            res = compare(base, filt, out=out / env / arm)
+            res = compare(base, filt, out=out / env / arm, overwrite=True)
             cells.append({"env_id": env, "arm": arm, **res})
     wall = round(time.perf_counter() - t0, 1)
     summary = {

@@ -8,8 +8,8 @@ Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with 
 from __future__ import annotations
 
 import os
-import shutil
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import gymnasium as gym
@@ -27,6 +27,7 @@ from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
 from lhf_hf.utils.hub import resolve, source_of
 from lhf_hf.utils.io import sha256_file, write_json_atomic, write_text_atomic
+from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .card import plot_loss, render_model_card, write_model_card
@@ -279,19 +280,32 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
     out = Path(cfg.out)
-    resume = None
-    last = get_last_checkpoint(str(out)) if out.is_dir() else None
-    if cfg.resume:
-        if last is None:
-            raise FileNotFoundError(f"--resume: no checkpoint-* folder in {out} to resume from")
-        resume = last
-    elif cfg.overwrite and out.is_dir():
-        shutil.rmtree(out)
-    elif last is not None or (out / "config.json").exists():
-        raise FileExistsError(
-            f"{out} already holds a model or checkpoints: pass --resume to continue or --overwrite "
-            "to start afresh"
-        )
+    with ExitStack() as claim:
+        if int(os.environ.get("RANK", "0")) == 0:  # rank 0 holds the folder for every process
+            claim.enter_context(
+                output_folder(
+                    out,
+                    "model",
+                    overwrite=cfg.overwrite,
+                    resume=cfg.resume,
+                    inputs=[cfg.dataset, cfg.selection],
+                    legacy=MODEL_FILES,
+                    resumable=True,
+                )
+            )
+        resume = None
+        if cfg.resume:
+            resume = get_last_checkpoint(str(out)) if out.is_dir() else None
+            if resume is None:
+                raise FileNotFoundError(f"--resume: no checkpoint-* folder in {out} to resume from")
+        return _train_into(cfg, model_config, out, resume)
+
+
+#: Files of a model folder written before output markers existed (``utils.outputs``).
+MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
+
+
+def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> Path:
     trainer, provenance = build_trainer(cfg, model_config)
     t0 = time.perf_counter()
     result = trainer.train(resume_from_checkpoint=resume)

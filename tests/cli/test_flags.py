@@ -184,4 +184,4 @@ def test_functions_behind_the_commands_have_the_same_defaults():
     assert same(commands.PushOptions, push, {"message": "commit_message"}) == 4
     assert same(commands.ReproduceOptions, reproduce, {"experiment": "name"}) == 4
     assert same(commands.EnvsOptions, env_rows) == 3
-    assert same(commands.CompareOptions, compare) == 1
+    assert same(commands.CompareOptions, compare) == 2

@@ -155,11 +155,18 @@ def test_evaluate_errors(tmp_path):
         EvalConfig(model="m", out="o", context="fast")
 
 
-def fake_eval(path, objective, curve, env="darkroom", plan=False):
+def fake_eval(path, objective, curve, env="darkroom", plan=False, split=0, tasks=(3, 5), context="cache"):  # fmt: skip
     path.mkdir(parents=True)
     (path / "eval_results.json").write_text(
         json.dumps(
-            {"env_id": env, "objective": objective, "config": {"plan": plan}, "mean_curve": curve}
+            {
+                "env_id": env,
+                "objective": objective,
+                "config": {"plan": plan, "context": context},
+                "mean_curve": curve,
+                "split_seed": split,
+                "tasks": list(tasks),
+            }  # fmt: skip
         )
     )
     return str(path)
@@ -194,6 +201,19 @@ def test_compare_errors(tmp_path):
         compare([], [a])
     with pytest.raises(FileNotFoundError, match="eval_results.json"):
         compare([a], [str(tmp_path / "missing")])
+    # runs that measure different things are refused, naming the difference
+    with pytest.raises(ValueError, match="different context protocols"):
+        compare([a], [fake_eval(tmp_path / "w", "ad", [1, 2], context="window")])
+    with pytest.raises(ValueError, match="differ in split or tasks"):
+        compare([a], [fake_eval(tmp_path / "s", "ad", [1, 2], split=1)])
+    with pytest.raises(ValueError, match="differ in split or tasks"):
+        compare([a], [fake_eval(tmp_path / "t", "ad", [1, 2], tasks=(3, 6))])
+    b1 = fake_eval(tmp_path / "b1", "ad", [1, 2], split=1, tasks=(4,))
+    with pytest.raises(ValueError, match="different splits or task sets"):
+        compare([a, b1], [fake_eval(tmp_path / "u", "ad", [1, 2], split=2)])
+    # cache and recompute are the same function: comparable; so are runs paired in order
+    r = compare([a], [fake_eval(tmp_path / "r", "ad", [2, 2], context="recompute")])
+    assert np.isclose(r["rows"][0]["E"], 2 / 1.5 - 1)
 
 
 def test_cli_evaluate_and_compare(tmp_path, capsys):

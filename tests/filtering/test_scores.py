@@ -69,6 +69,23 @@ def test_sampling_hand_computed():
     np.testing.assert_allclose(p, [0, 1])
 
 
+@pytest.mark.filterwarnings("error")  # no RuntimeWarning either
+def test_softmax_limits_of_the_temperature():
+    """A tiny temperature is the argmax (best P = 1, others 0), never NaN; a huge one keeps all."""
+    u = np.array([0.2, 0.9, 0.5, 0.9 - 1e-12])
+    for alpha in (1e-320, 5e-324, 1e-30):
+        np.testing.assert_array_equal(
+            sampling_probabilities(u, "softmax", alpha=alpha), [0, 1, 0, 0]
+        )
+    np.testing.assert_array_equal(sampling_probabilities(u, "softmax", alpha=1e300), [1, 1, 1, 1])
+    # between the limits: the closed form exp(U / a) / sum, min-max normalised
+    a = 0.125
+    e = np.exp(u / a) / np.exp(u / a).sum()
+    np.testing.assert_allclose(
+        sampling_probabilities(u, "softmax", alpha=a), (e - e.min()) / (e.max() - e.min())
+    )
+
+
 def test_sampling_errors():
     with pytest.raises(ValueError, match="unknown sampling strategy 'cubic'"):
         sampling_probabilities([1, 2], "cubic")

@@ -9,8 +9,8 @@ from lhf_hf import constants as C
 from lhf_hf.histories.schema import TaskHistories
 from lhf_hf.histories.writer import (
     OutputExistsError,
+    claim_dataset,
     data_path,
-    prepare_output,
     task_done,
     write_task,
 )
@@ -88,22 +88,28 @@ def test_invalid_histories_rejected(tmp_path):
     assert not (tmp_path / data_path(0)).exists()
 
 
-def test_prepare_output_rules(tmp_path):
+def test_claim_dataset_rules(tmp_path):
     ident = {"env_id": "darkroom", "seed": 0}
     out = tmp_path / "out"
-    prepare_output(out, ident)
+    with claim_dataset(out, ident):
+        pass
     assert json.loads((out / C.CONFIG_PATH).read_text()) == ident
     with pytest.raises(OutputExistsError, match="--resume"):
-        prepare_output(out, ident)
-    prepare_output(out, ident, resume=True)
+        with claim_dataset(out, ident):
+            pass
+    with claim_dataset(out, ident, resume=True):
+        pass
     with pytest.raises(OutputExistsError, match=r"different config \(seed: 0 -> 1\)"):
-        prepare_output(out, {**ident, "seed": 1}, resume=True)
-    prepare_output(out, {**ident, "seed": 1}, overwrite=True)
+        with claim_dataset(out, {**ident, "seed": 1}, resume=True):
+            pass
+    with claim_dataset(out, {**ident, "seed": 1}, overwrite=True):
+        pass
+    assert json.loads((out / C.CONFIG_PATH).read_text())["seed"] == 1
     stranger = tmp_path / "mine"
     stranger.mkdir()
     (stranger / "thesis.tex").write_text("precious")
-    with pytest.raises(OutputExistsError, match="refusing to delete"):
-        prepare_output(stranger, ident, overwrite=True)
-    with pytest.raises(OutputExistsError, match="another --out"):
-        prepare_output(stranger, ident, resume=True)
+    for kw in ({"overwrite": True}, {"resume": True}):
+        with pytest.raises(OutputExistsError, match="not an lhf dataset"):
+            with claim_dataset(stranger, ident, **kw):
+                pass
     assert (stranger / "thesis.tex").read_text() == "precious"

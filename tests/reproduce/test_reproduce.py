@@ -114,7 +114,7 @@ def test_stage_configs_take_the_config_defaults(tmp_path):
     assert tr == TrainConfig(dataset="d", objective="ad", out="o", seed=1, overwrite=True,
                              preset="tiny", max_steps=4, batch_size=4, save_steps=4)  # fmt: skip
     assert exp.eval_config(1, model="m", out="o", plan=False) == EvalConfig(
-        model="m", out="o", seed=1, episodes=2
+        model="m", out="o", seed=1, episodes=2, overwrite=True
     )
 
 

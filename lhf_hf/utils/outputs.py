@@ -1,0 +1,180 @@
+"""Output folders: what a command may do with the folder it writes (README "Safety").
+
+One policy for every command that writes a folder (collect, derive, filter, materialize, train,
+evaluate, compare, reproduce):
+
+- A folder is written only while this process holds its lock (``fcntl.flock`` on ``.NAME.lock``
+  beside it, holding the writer's PID): a second writer gets an error naming that PID.
+- An empty or missing folder is used as is.  A non-empty one only when it is an artifact of the same
+  kind (``.lhf_output.json`` says so; folders written before the marker are recognised by their
+  files), and then only with ``resume`` (continue it) or ``overwrite`` (replace it).  Anything else
+  (someone's files, an artifact of another kind) is never written into or deleted.
+- The folder may not be or contain an input of the same command (replacing it would delete the
+  input); a folder inside an input is allowed (``lhf evaluate --model m --out m/eval``).
+- ``overwrite`` is atomic at the folder level: the old artifact is renamed aside
+  (``.NAME.replaced-PID``), the new one is written under the name, and the old one is deleted only
+  once the command succeeded; an error or Ctrl-C puts the old one back.  A killed process leaves
+  the old artifact beside the new one (the next writer names it).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+import sys
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from lhf_hf import __version__
+
+from .io import write_json_atomic
+
+MARKER = ".lhf_output.json"
+
+
+class OutputError(FileExistsError):
+    """The output folder may not be written as asked (a user error: one clear line)."""
+
+
+def _marker_kind(path: Path) -> str | None:
+    try:
+        return json.loads((path / MARKER).read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def describe(path: Path) -> str:
+    """What a folder holds, in words, for error messages."""
+    kind = _marker_kind(path)
+    if kind:
+        return f"an lhf {kind}"
+    names = sorted(p.name for p in path.iterdir())
+    shown = ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
+    return f"{len(names)} entr{'y' if len(names) == 1 else 'ies'} ({shown})"
+
+
+def holds_kind(path: Path, kind: str, legacy: Iterable[str] = ()) -> bool:
+    """Whether ``path`` is an artifact of ``kind``: its marker says so, or (no marker: written
+    before markers existed) one of the ``legacy`` files of that kind is there."""
+    marked = _marker_kind(path)
+    if marked is not None:
+        return marked == kind
+    return any(next(path.glob(pattern), None) is not None for pattern in legacy)
+
+
+def _is_within(inner: Path, outer: Path) -> bool:
+    return inner == outer or outer in inner.parents
+
+
+def check_not_an_input(out: Path, inputs: Iterable[str | Path | None]) -> None:
+    """Refuse an output folder that is or contains an existing local input."""
+    target = out.resolve()
+    for given in inputs:
+        if given is None or not Path(given).exists():
+            continue  # a Hub repo id, or nothing: no local folder to protect
+        src = Path(given).resolve()
+        if _is_within(src, target):
+            relation = "is" if src == target else "contains"
+            raise OutputError(
+                f"the output folder {out} {relation} the input {given}: choose another output"
+            )
+
+
+@contextmanager
+def _lock(out: Path) -> Iterator[None]:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    lock_path = out.parent / f".{out.name}.lock"
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise OutputError(
+                f"{out} is being written by another process (PID {holder}); wait for it to end "
+                "or choose another output"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _stale_replacements(out: Path) -> list[Path]:
+    return sorted(out.parent.glob(f".{out.name}.replaced-*"))
+
+
+@contextmanager
+def output_folder(
+    out: str | Path,
+    kind: str,
+    *,
+    overwrite: bool = False,
+    resume: bool = False,
+    inputs: Iterable[str | Path | None] = (),
+    legacy: Iterable[str] = (),
+    resumable: bool = False,
+) -> Iterator[Path]:
+    """Claim ``out`` for writing an artifact of ``kind`` (see the module docstring).
+
+    kind: ``dataset``, ``selection``, ``model``, ``evaluation``, ``comparison``, ``report``.
+    overwrite / resume: what may happen to an existing artifact of the same kind.
+    inputs: the command's local inputs (paths; Hub ids and None are skipped).
+    legacy: files (glob patterns) that mark an artifact of ``kind`` written before the marker
+        existed.
+    resumable: the command can continue an interrupted run (named in the error message).
+    """
+    out = Path(out)
+    if resume and overwrite:
+        raise ValueError("resume and overwrite exclude each other")
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out} is a file, not a folder: choose another output")
+    check_not_an_input(out, inputs)
+    with _lock(out):
+        for stale in _stale_replacements(out):
+            print(
+                f"lhf: note: {stale} is an earlier {kind} of {out} left by an interrupted "
+                "--overwrite (delete it once the new one is good)",
+                file=sys.stderr,
+            )
+        replaced = None
+        if out.is_dir() and any(out.iterdir()):
+            if not holds_kind(out, kind, legacy):
+                action = "replace" if overwrite else "write into"
+                raise OutputError(
+                    f"{out} holds {describe(out)}, not an lhf {kind}: refusing to {action} it; "
+                    "choose another output"
+                )
+            if overwrite:
+                replaced = out.parent / f".{out.name}.replaced-{os.getpid()}"
+                os.replace(out, replaced)  # atomic: the old artifact is whole until success
+            elif not resume:
+                hint = "--resume to continue it or " if resumable else ""
+                raise OutputError(
+                    f"{out} already holds an lhf {kind}: pass {hint}--overwrite to replace it, "
+                    "or choose another output"
+                )
+        created = not out.exists()
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            if replaced is not None:
+                os.replace(replaced, out)
+            raise OutputError(f"cannot create the output folder {out}: {exc.strerror}") from None
+        if _marker_kind(out) is None:
+            write_json_atomic({"kind": kind, "lhf_hf": __version__}, out / MARKER)
+        try:
+            yield out
+        except BaseException:
+            if replaced is not None:  # put the old artifact back: nothing lost
+                shutil.rmtree(out, ignore_errors=True)
+                os.replace(replaced, out)
+            elif created and {p.name for p in out.iterdir()} <= {MARKER}:
+                shutil.rmtree(out, ignore_errors=True)  # failed before writing: leave nothing
+            raise
+        if replaced is not None:
+            shutil.rmtree(replaced, ignore_errors=True)

@@ -1,0 +1,198 @@
+"""The output-folder policy: what a command may do with the folder it writes."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.outputs import MARKER, OutputError, output_folder
+
+
+def _files(path):
+    return sorted(p.name for p in path.iterdir())
+
+
+def test_new_and_empty_folders_are_claimed_and_marked(tmp_path):
+    with output_folder(tmp_path / "a" / "b", "selection") as out:
+        (out / "x.txt").write_text("1")
+    assert json.loads((out / MARKER).read_text())["kind"] == "selection"
+    (tmp_path / "empty").mkdir()
+    with output_folder(tmp_path / "empty", "model"):
+        pass
+
+
+def test_someone_elses_folder_is_never_written_or_deleted(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    for kw in ({}, {"overwrite": True}, {"resume": True}):
+        with pytest.raises(OutputError, match=r"holds 1 entry \(thesis.tex\), not an lhf model"):
+            with output_folder(mine, "model", **kw):
+                pytest.fail("the body must not run")
+    assert _files(mine) == ["thesis.tex"] and (mine / "thesis.tex").read_text() == "precious"
+
+
+def test_an_artifact_of_another_kind_is_refused(tmp_path):
+    with output_folder(tmp_path / "d", "dataset") as d:
+        (d / "data.parquet").write_text("rows")
+    with pytest.raises(OutputError, match="holds an lhf dataset, not an lhf model"):
+        with output_folder(d, "model", overwrite=True):
+            pass
+    assert (d / "data.parquet").read_text() == "rows"
+
+
+def test_same_kind_needs_resume_or_overwrite(tmp_path):
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("old")
+    with pytest.raises(OutputError, match="pass --resume to continue it or --overwrite"):
+        with output_folder(m, "model", resumable=True):
+            pass
+    with pytest.raises(OutputError, match="pass --overwrite to replace it"):
+        with output_folder(m, "model"):
+            pass
+    with output_folder(m, "model", resume=True):
+        assert (m / "w").read_text() == "old"
+    with output_folder(m, "model", overwrite=True):
+        assert _files(m) == [MARKER]  # a fresh folder under the name
+        (m / "w").write_text("new")
+    assert (m / "w").read_text() == "new"
+    assert not list(tmp_path.glob(".m.replaced-*"))  # the old one is gone once the new is done
+
+
+def test_legacy_artifacts_are_recognised_by_their_files(tmp_path):
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "filter_config.json").write_text("{}")
+    with output_folder(old, "selection", overwrite=True, legacy=["filter_config.json"]):
+        pass
+    (tmp_path / "ck").mkdir()
+    (tmp_path / "ck" / "checkpoint-4").mkdir()
+    with output_folder(tmp_path / "ck", "model", resume=True, legacy=["checkpoint-*"]):
+        pass
+
+
+def test_a_failed_overwrite_puts_the_old_artifact_back(tmp_path):
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("old")
+    for error in (RuntimeError("boom"), KeyboardInterrupt()):
+        with pytest.raises(type(error)):
+            with output_folder(m, "model", overwrite=True):
+                (m / "w").write_text("half-written")
+                raise error
+        assert (m / "w").read_text() == "old"
+        assert not list(tmp_path.glob(".m.replaced-*"))
+
+
+def test_a_failure_before_writing_leaves_no_folder(tmp_path):
+    with pytest.raises(ValueError):
+        with output_folder(tmp_path / "new", "evaluation"):
+            raise ValueError("bad model")
+    assert not (tmp_path / "new").exists()
+
+
+def test_inputs_are_never_the_output_or_inside_it(tmp_path):
+    src = tmp_path / "data"
+    with output_folder(src, "dataset"):
+        (src / "f").write_text("data")
+    with pytest.raises(OutputError, match=r"output folder .*data is the input"):
+        with output_folder(src, "dataset", overwrite=True, inputs=[src]):
+            pass
+    with pytest.raises(OutputError, match="contains the input"):
+        with output_folder(tmp_path, "dataset", overwrite=True, inputs=[str(src)]):
+            pass
+    # inside an input is allowed (lhf evaluate --model m --out m/eval); Hub ids are skipped
+    with output_folder(src / "eval", "evaluation", inputs=[src, "org/name", None]):
+        pass
+    assert (src / "f").read_text() == "data"
+
+
+def test_a_file_is_not_a_folder(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputError, match="is a file, not a folder"):
+        with output_folder(tmp_path / "f", "model"):
+            pass
+
+
+def test_unwritable_parent_is_a_clear_error(tmp_path):
+    if os.geteuid() == 0:
+        pytest.skip("root writes anywhere")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        with pytest.raises(OutputError):
+            with output_folder(ro / "out", "model"):
+                pass
+    finally:
+        ro.chmod(0o700)
+
+
+def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
+    """A real second process holds the folder; this one gets an error with that PID."""
+    out = tmp_path / "busy"
+    code = textwrap.dedent(
+        f"""
+        import sys, time
+        from lhf_hf.utils.outputs import output_folder
+        with output_folder({str(out)!r}, "model"):
+            print("held", flush=True)
+            sys.stdin.readline()
+        """
+    )
+    holder = subprocess.Popen(
+        [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(
+            OutputError, match=f"being written by another process \\(PID {holder.pid}\\)"
+        ):
+            with output_folder(out, "model", overwrite=True):
+                pass
+    finally:
+        holder.communicate("\n", timeout=60)
+    with output_folder(out, "model", overwrite=True):  # free again once the holder is done
+        pass
+
+
+def test_killed_overwrite_keeps_the_old_artifact_beside(tmp_path):
+    """kill -9 during an overwrite: the old artifact survives whole, and the next writer names it."""
+    out = tmp_path / "m"
+    with output_folder(out, "model") as m:
+        (m / "w").write_text("old")
+    code = textwrap.dedent(
+        f"""
+        import sys
+        from lhf_hf.utils.outputs import output_folder
+        with output_folder({str(out)!r}, "model", overwrite=True) as m:
+            (m / "w").write_text("half")
+            print("writing", flush=True)
+            sys.stdin.readline()
+        """
+    )
+    p = subprocess.Popen(
+        [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    assert p.stdout.readline().strip() == "writing"
+    p.kill()
+    p.wait(timeout=60)
+    (kept,) = tmp_path.glob(".m.replaced-*")
+    assert (kept / "w").read_text() == "old"
+    code = f"from lhf_hf.utils.outputs import output_folder\nwith output_folder({str(out)!r}, 'model', resume=True): pass"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert str(kept) in r.stderr and "interrupted --overwrite" in r.stderr
+
+
+def test_atomic_writes_follow_the_umask(tmp_path):
+    write_text_atomic("x", tmp_path / "a.txt")
+    mode = stat.S_IMODE((tmp_path / "a.txt").stat().st_mode)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert mode == 0o666 & ~umask
