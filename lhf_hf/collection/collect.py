@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from contextlib import ExitStack
@@ -122,9 +123,13 @@ def _run_sb3(
                 collect_and_write_task(config_dict, tasks[p], p, str(out))
                 bar.update(1)
         else:
-            # spawn: torch and MuJoCo are not fork-safe once initialised.
+            # spawn: torch and MuJoCo are not fork-safe once initialised.  Each worker watches this
+            # process and exits when it is gone (kill -9 included), so no orphan keeps writing.
             with ProcessPoolExecutor(
-                max_workers=min(config.workers, len(todo)), mp_context=get_context("spawn")
+                max_workers=min(config.workers, len(todo)),
+                mp_context=get_context("spawn"),
+                initializer=exit_with_parent,
+                initargs=(os.getpid(),),
             ) as pool:
                 pending = {
                     pool.submit(collect_and_write_task, config_dict, tasks[p], p, str(out))
@@ -137,6 +142,18 @@ def _run_sb3(
                         bar.update(1)
     finally:
         bar.close()
+
+
+def exit_with_parent(parent: int, period_s: float = 0.5) -> None:
+    """In a worker process: a daemon thread that ends the process once ``parent`` is gone (the
+    worker is then re-parented, so its parent PID changes); queued tasks die with it."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _run_batched(

@@ -7,6 +7,8 @@ Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with 
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import time
 from contextlib import ExitStack
@@ -38,6 +40,15 @@ TRAIN_CONFIG_FILE = "train_config.json"
 #: Trainer's arguments as JSON: Trainer itself pickles them into ``training_args.bin``, and loading a
 #: pickle runs code, so no folder of ours keeps one (see ``WindowTrainer._save``).
 TRAINING_ARGS_FILE = "training_args.json"
+#: In every checkpoint: what produced it (``train_identity``), checked by ``--resume``.
+IDENTITY_FILE = "lhf_train_identity.json"
+#: TrainConfig fields that decide what a step computes (logging, saving and places do not).
+_IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", "lr",
+                    "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
+                    "dynamics_coef", "seed", "batch_size", "max_steps")  # fmt: skip
+_MODEL_FIELDS = ("objective", "state_dim", "state_bins", "action_dim", "discrete_actions",
+                 "context_length", "label_positions", "hidden_size", "intermediate_size",
+                 "num_hidden_layers", "num_attention_heads", "dynamics_coef")  # fmt: skip
 PICKLED_TRAINING_ARGS = "training_args.bin"
 LOG_FILE = "training_log.json"
 LOSS_PLOT = "training_loss.png"
@@ -71,6 +82,9 @@ class WindowTrainer(Trainer):
             out = Path(output_dir if output_dir is not None else self.args.output_dir)
             (out / PICKLED_TRAINING_ARGS).unlink(missing_ok=True)
             write_text_atomic(self.args.to_json_string(), out / TRAINING_ARGS_FILE)
+            identity = getattr(self, "lhf_identity", None)
+            if identity is not None and out.name.startswith("checkpoint-"):
+                write_json_atomic(identity, out / IDENTITY_FILE)
 
     def _get_train_sampler(self, train_dataset=None):
         ds = train_dataset if train_dataset is not None else self.train_dataset
@@ -187,6 +201,7 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
     info = {
         "path": source_of(selection_dir, local),
         "fingerprint": sha256_file(local / SCORES_FILE),
+        "counts_sha256": hashlib.sha256(out.tobytes()).hexdigest(),  # what training draws from
         "filter": sel.config.to_dict(),
         "selected_unique": int((out > 0).sum()),
         "total_count": int(out.sum()),
@@ -274,7 +289,45 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         "world_size": world,
         "per_device_batch_size": cfg.batch_size // world,
     }
+    trainer.lhf_identity = train_identity(cfg, config, provenance)
     return trainer, provenance
+
+
+def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> dict:
+    """What a training run's steps depend on: the data (fingerprints), the model and the
+    optimisation settings.  A resumed run must match the checkpoint's."""
+    selection = provenance.get("selection") or {}
+    return {
+        "train": {k: getattr(cfg, k) for k in _IDENTITY_FIELDS},
+        "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
+        "dataset_fingerprint": provenance["dataset"]["fingerprint"],
+        "selection_fingerprint": selection.get("counts_sha256"),
+    }
+
+
+def check_resume(checkpoint: str, identity: dict) -> None:
+    """Refuse to resume ``checkpoint`` with another dataset, selection, model or settings."""
+    path = Path(checkpoint) / IDENTITY_FILE
+    if not path.exists():
+        raise ValueError(
+            f"--resume: {checkpoint} does not record what it was trained with ({IDENTITY_FILE}), "
+            "so resuming it cannot be checked; train afresh with --overwrite"
+        )
+    old = json.loads(path.read_text())
+    diff = []
+    for part in ("train", "model"):
+        for k in sorted(set(old.get(part, {})) | set(identity[part])):
+            a, b = old.get(part, {}).get(k), identity[part].get(k)
+            if a != b:
+                diff.append(f"{k}: {a!r} -> {b!r}")
+    for k in ("dataset_fingerprint", "selection_fingerprint"):
+        if old.get(k) != identity[k]:
+            diff.append(f"{k.split('_')[0]}: {str(old.get(k))[:16]} -> {str(identity[k])[:16]}")
+    if diff:
+        raise ValueError(
+            f"--resume: {checkpoint} was trained with a different setup ({'; '.join(diff)}); "
+            "resume with the same settings, or --overwrite to start afresh"
+        )
 
 
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
@@ -307,6 +360,8 @@ MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
 
 def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> Path:
     trainer, provenance = build_trainer(cfg, model_config)
+    if resume is not None:
+        check_resume(resume, trainer.lhf_identity)
     t0 = time.perf_counter()
     result = trainer.train(resume_from_checkpoint=resume)
     wall = time.perf_counter() - t0

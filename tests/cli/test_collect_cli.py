@@ -72,3 +72,35 @@ def test_batched_options_reach_the_dataset(tmp_path, capsys):
         assert main([*base, "--out", str(tmp_path / "g"), "--device", "cuda"]) == 1
         assert "torch sees no CUDA device" in capsys.readouterr().err
         assert not (tmp_path / "g").exists()
+
+
+def test_killed_collection_leaves_no_worker_running(tmp_path):
+    """kill -9 of `lhf collect --workers 2`: its SB3 worker processes exit too (no orphans that
+    finish the queued tasks into the folder)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    out = tmp_path / "d"
+    cmd = [sys.executable, "-m", "lhf_hf", "collect", "darkroom", "--out", str(out), "--workers",
+           "2", "--tasks", "3,10,40,62", "--histories", "10", "--steps", "4000", "--no-progress"]  # fmt: skip
+    parent = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers = []
+    deadline = time.monotonic() + 120
+    while len(workers) < 2 and time.monotonic() < deadline:
+        time.sleep(0.5)
+        workers = [
+            c
+            for c in psutil.Process(parent.pid).children()
+            if "spawn_main" in " ".join(c.cmdline())
+        ]
+    assert len(workers) == 2, "the workers did not start"
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait(timeout=30)
+    gone, alive = psutil.wait_procs(workers, timeout=30)
+    assert not alive, [p.pid for p in alive]
+    assert not (out / "meta" / "info.json").exists()  # nothing finished it behind our back

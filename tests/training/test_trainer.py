@@ -130,7 +130,7 @@ def test_existing_output_needs_resume_or_overwrite(small_darkroom, tmp_path):
     assert (tmp_path / "m" / "model.safetensors").exists()
 
 
-def test_resume_continues_identically(small_darkroom, tmp_path):
+def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path):
     cfg = dict(
         dataset=str(small_darkroom.root),
         objective="dicp",
@@ -149,6 +149,15 @@ def test_resume_continues_identically(small_darkroom, tmp_path):
     assert json.loads((resumed / "train_config.json").read_text())["resumed_from"].endswith(
         "checkpoint-6"
     )
+    # resuming with other settings or data is refused, naming what differs
+    for changed, message in [
+        ({"lr": 0.5}, r"lr: 0.003 -> 0.5"),
+        ({"seed": 1}, r"seed: 0 -> 1"),
+        ({"max_steps": 13}, r"max_steps: 12 -> 13"),
+        ({"dataset": str(learned_darkroom.root)}, r"dataset: [0-9a-f]{16} -> [0-9a-f]{16}"),
+    ]:
+        with pytest.raises(ValueError, match=f"different setup \\(.*{message}"):
+            train(TrainConfig(out=str(part), resume=True, **{**cfg, **changed}))
     # Trainer's pickled TrainingArguments never stay: JSON beside the weights instead (the
     # checkpoints' optimizer/scheduler/RNG states are torch files Trainer loads weights_only)
     for out in (full, resumed):
