@@ -2,9 +2,12 @@
 
 The kernel is compiled on first use with the system's C++ compiler (``$CXX`` or ``g++``; ``-O3
 -march=native``, so it must be built on the machine that runs it) into a per-user cache
-(``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags and the
-compiler's version; the file is written under a temporary name and renamed, so concurrent builds are
-safe.  No compiler, or a failed build, raises :class:`KernelUnavailable` with the reason; the
+(``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags, the
+compiler's version and what ``-march=native`` means on this CPU (the compiler's expansion of it);
+the file is written under a temporary name and renamed, so concurrent builds are safe.  A library
+is loaded only from a private cache (owned by this user, writable by nobody else) and only when its
+SHA-256 equals the one recorded when it was built: a missing, truncated, corrupt or foreign file is
+rebuilt, never loaded (``dlopen`` runs a library's code, and a truncated one kills the process).  No compiler, or a failed build, raises :class:`KernelUnavailable` with the reason; the
 ``auto`` gradients mode of :func:`lhf_hf.collection.ppo_backends.ppo_update` then falls back to the
 torch implementation.
 
@@ -80,6 +83,45 @@ def cache_dir() -> Path:
     )
 
 
+def private_cache_dir() -> Path:
+    """``cache_dir()``, created 0700, after checking that nobody else can write libraries into it."""
+    path = cache_dir()
+    path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    st = path.stat()
+    if st.st_uid != os.getuid() or st.st_mode & 0o022:
+        raise KernelUnavailable(
+            f"the kernel cache {path} is not private (owner uid {st.st_uid}, mode "
+            f"{oct(st.st_mode & 0o777)}): it must be yours and writable by you alone "
+            f"(chmod 700 {path}), or set $LHF_HF_KERNEL_CACHE to such a folder"
+        )
+    return path
+
+
+def _native_target(cxx: str) -> str:
+    """The compiler's expansion of ``-march=native`` (CPU model and every enabled feature)."""
+    proc = subprocess.run(
+        [cxx, "-march=native", "-Q", "--help=target"], capture_output=True, text=True
+    )
+    return proc.stdout
+
+
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _verified(lib: Path) -> bool:
+    """The library exists and its bytes are the ones recorded when it was built."""
+    record = lib.with_name(lib.name + ".sha256")
+    try:
+        return record.read_text().strip() == _digest(lib)
+    except OSError:
+        return False
+
+
 def _compiler() -> str:
     cxx = os.environ.get("CXX", "g++")
     if shutil.which(cxx) is None:
@@ -100,19 +142,28 @@ def build(hidden: int = 64) -> Path:
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
     flags = (*FLAGS, f"-DHID={hidden}")
     key = hashlib.sha256(
-        "\0".join([SOURCE.read_text(), " ".join(flags), version, os.uname().machine]).encode()
+        "\0".join(
+            [SOURCE.read_text(), " ".join(flags), version, os.uname().machine, _native_target(cxx)]
+        ).encode()
     ).hexdigest()[:16]
-    out = cache_dir() / f"ppo_update-h{hidden}-{key}.so"
-    if out.exists():
+    out = private_cache_dir() / f"ppo_update-h{hidden}-{key}.so"
+    if _verified(out):
         return out
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists():
+        logger.warning("%s does not match its recorded SHA-256: rebuilding it", out)
     fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".so.tmp")
     os.close(fd)
     try:
         proc = subprocess.run([cxx, *flags, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
         if proc.returncode != 0:
             raise KernelUnavailable(f"building {SOURCE.name} failed:\n{proc.stderr[-2000:]}")
+        digest = _digest(Path(tmp))
         os.replace(tmp, out)  # atomic: a concurrent build of the same key writes the same bytes
+        record = out.with_name(out.name + ".sha256")
+        fd, tmp_record = tempfile.mkstemp(dir=out.parent, suffix=".sha256.tmp")
+        with os.fdopen(fd, "w") as f:
+            f.write(digest + "\n")
+        os.replace(tmp_record, record)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -121,7 +172,11 @@ def build(hidden: int = 64) -> Path:
 
 @functools.cache
 def load(hidden: int = 64) -> ctypes.CDLL:
-    lib = ctypes.CDLL(str(build(hidden)))
+    path = build(hidden)
+    if not _verified(path):  # changed since this process built or checked it: check again
+        build.cache_clear()
+        path = build(hidden)
+    lib = ctypes.CDLL(str(path))
     if lib.lhf_abi_version() != ABI_VERSION or lib.lhf_hidden() != hidden:
         raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI or hidden width)")
     lib.lhf_ppo_update.argtypes = [ctypes.POINTER(PPOArgs), ctypes.c_int64, ctypes.c_int64]

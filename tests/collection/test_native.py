@@ -2,6 +2,7 @@
 
 import ctypes
 import logging
+import stat
 
 import numpy as np
 import pytest
@@ -35,6 +36,39 @@ def test_build_is_cached(tmp_path, monkeypatch):
         assert native.build(64) == path and path.stat().st_mtime_ns == mtime  # not rebuilt
         assert not list(tmp_path.glob("*.tmp"))  # written under a temporary name, then renamed
     finally:
+        native.build.cache_clear()
+
+
+def test_the_kernel_cache_loads_only_what_it_built(tmp_path, monkeypatch):
+    """A foreign, corrupt or truncated library under the cached name is rebuilt, never loaded;
+    the cache must be private; the key covers what -march=native means on this CPU."""
+    cache = tmp_path / "kernels"
+    monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(cache))
+    native.build.cache_clear()
+    try:
+        path = native.build(64)
+        assert stat.S_IMODE(cache.stat().st_mode) == 0o700
+        good = path.read_bytes()
+        for bad in (b"\x7fELF not a library", good[: len(good) // 2]):  # foreign, truncated
+            path.write_bytes(bad)
+            native.build.cache_clear()
+            assert native.build(64) == path and path.read_bytes() != bad
+            assert native._verified(path)
+        path.with_name(path.name + ".sha256").unlink()  # no record: not trusted either
+        native.build.cache_clear()
+        native.build(64)
+        assert native._verified(path)
+        # another CPU (another expansion of -march=native) is another library
+        monkeypatch.setattr(native, "_native_target", lambda cxx: "-march=znver3 -mno-avx512f")
+        native.build.cache_clear()
+        other = native.build(64)
+        assert other != path and native._verified(other)
+        cache.chmod(0o777)  # anyone could plant a library: refused, with the fix in the message
+        native.build.cache_clear()
+        with pytest.raises(native.KernelUnavailable, match="is not private .*chmod 700"):
+            native.build(64)
+    finally:
+        cache.chmod(0o700)
         native.build.cache_clear()
 
 
