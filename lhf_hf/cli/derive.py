@@ -12,7 +12,7 @@ HELP = "derive a dataset from a history dataset (half: the first 50%% of every h
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("derive", help=HELP, description=HELP)
+    p = subparsers.add_parser("derive", help=HELP, description=HELP.replace("%%", "%"))
     derive = add_params(p, DeriveOptions, positional=("op", "src"))
     output = add_params(p, OutputOptions, only=("out", "progress"))
     output += add_params(

@@ -125,12 +125,12 @@ def params(
 
 def _help(p: Param) -> str:
     # docstrings are reStructuredText: ``x`` reads as `x` on a terminal
-    text = p.help.replace("``", "`").replace("%", "%%")
+    text = p.help.replace("``", "`").replace("%", "%%").replace("None = ", "unset: ")
     if p.kind is bool and p.default is True:  # the --no-NAME switch
         text = "do not " + text[0].lower() + text[1:]
     shown = p.default is not REQUIRED and p.default is not None and p.kind is not bool
     if shown and "default" not in text:  # a text that speaks of its default says it better
-        text += f" (default: {p.default})"
+        text = f"{text.rstrip('.')} (default: {p.default})"
     return text
 
 
@@ -182,7 +182,7 @@ def add_params(
                 kw["nargs"] = "+"
             if p.choices:
                 kw["choices"] = p.choices
-            kw["metavar"] = None if p.choices else p.name.upper()
+            kw["metavar"] = None if p.choices else flag.lstrip("-").replace("-", "_").upper()
             if p.default is REQUIRED:
                 kw["required"] = True
         target.add_argument(flag, **kw)

@@ -10,6 +10,8 @@ from typing import Literal, get_args
 
 from lhf_hf.envs import get_spec
 
+from .types import check_types
+
 Protocol = Literal["paper", "independent", "noisy"]
 Algo = Literal["ppo", "sac"]
 Collector = Literal["sb3", "batched"]
@@ -41,6 +43,7 @@ class PPOSettings:
     gamma: float = 0.99
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name in ("n_steps", "batch_size", "n_epochs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOSettings.{name} must be >= 1, got {getattr(self, name)!r}")
@@ -68,12 +71,24 @@ class SACSettings:
     learning_starts: int = 100
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.batch_size < 1:
             raise ValueError(f"SACSettings.batch_size must be >= 1, got {self.batch_size!r}")
         if not 0 < self.learning_rate < 1:
             raise ValueError(
                 f"SACSettings.learning_rate must be in (0, 1), got {self.learning_rate!r}"
             )
+
+
+def _settings(cls: type, given: dict, name: str):
+    """Nested settings from a mapping (a spec, a stored config), unknown keys named."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise ValueError(
+            f"CollectConfig.{name}: unknown setting {unknown[0]!r} (one of {sorted(known)})"
+        )
+    return cls(**given)
 
 
 def ppo_preset(env_id: str) -> PPOSettings:
@@ -118,7 +133,8 @@ class CollectConfig:
     """How to collect learning histories.  Stored in the dataset's ``meta/info.json``.
 
     env_id: registered env id (``lhf envs``).
-    tasks: ``all``, ``train``, ``test``, ``"0,3,7"`` or a list of task indices (resolved to a sorted list).
+    tasks: ``all``, ``train``, ``test``, ``train:N`` / ``test:N`` (the first N of that split), task
+        indices ``0,3,7``, or a list of them (resolved to a sorted list).
     histories: learning histories per task (paper: 100).
     steps: transitions per history; a multiple of the env's horizon (paper: 1000, Meta-World 10,000).
     protocol: ``paper`` (one learner per task acting in ``histories`` parallel copies, one history per
@@ -137,20 +153,13 @@ class CollectConfig:
     tasks_per_chunk: batched collector: tasks trained together (default: as many as fit in
         ~50M transitions).  Part of the data's identity: it sets the chunks' random streams.
     device: batched collector: where the stacked PPO learners act and learn, ``cpu`` or
-        ``cuda[:N]`` (the environments always step on the CPU).  The same algorithm and
-        initialisation; on CUDA the action sampling and minibatch permutations draw from the
-        device's generator, so the data differ from a CPU run's: part of the data's identity
-        (the default ``cpu`` is left out of it, so datasets from before this field keep theirs).
-        Availability is checked when collecting, not here, so such a dataset's config still loads
-        on a machine without a GPU.
+        ``cuda[:N]`` (the environments always step on the CPU).  The same algorithm; on CUDA the
+        random draws come from the device's generator, so the data differ from a CPU run's.
     ppo_backend: batched collector on the CPU: how the stacked PPO learners act and learn.
-        ``kernel``: the C++ kernel (``lhf_hf/collection/kernels``, compiled on first use with the
-        system's g++; 2-3x the torch ops' speed), actions drawn by inverse CDF from uniforms of the
-        chunk's generator; ``torch``: torch ops (any device; the only choice on CUDA); ``auto``
-        (default): ``kernel`` where it builds, else ``torch``, resolved when collecting, and the
-        resolved value is stored.  The two draw minibatch permutations from different streams, so
-        the data differ: part of the data's identity (``torch`` is left out of it, so datasets from
-        before this field keep theirs).
+        ``kernel``: the C++ kernel (compiled on first use with the system's g++); ``torch``: torch
+        ops (any device; the only choice on CUDA); ``auto``: ``kernel`` where it builds, else
+        ``torch``.  The two draw their random numbers differently, so the data differ; the
+        resolved choice is stored with the dataset.
     """
 
     env_id: str
@@ -171,6 +180,7 @@ class CollectConfig:
     ppo_backend: PpoBackend = "auto"
 
     def __post_init__(self) -> None:
+        check_types(self)
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
         if self.protocol not in PROTOCOLS:
             raise ValueError(
@@ -204,9 +214,12 @@ class CollectConfig:
                 f"CollectConfig: noisy protocol with {self.histories} histories leaves no learner histories"
             )
         if isinstance(self.ppo, dict):
-            self.ppo = PPOSettings(**self.ppo)
+            self.ppo = _settings(PPOSettings, self.ppo, "ppo")
         if isinstance(self.sac, dict):
-            self.sac = SACSettings(**self.sac)
+            self.sac = _settings(SACSettings, self.sac, "sac")
+        for name in ("seed", "split_seed"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"CollectConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if self.ppo is None:
             self.ppo = ppo_preset(self.env_id)
         self.tasks = parse_tasks(self.tasks, self.env_id, self.split_seed)

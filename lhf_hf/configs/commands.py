@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from .types import check_types
+
 ExperimentPreset = Literal["quick", "cpu", "paper"]
 EXPERIMENT_PRESETS: tuple[str, ...] = get_args(ExperimentPreset)
 
@@ -28,6 +30,7 @@ class OutputOptions:
     progress: bool = True
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.resume and self.overwrite:
             raise ValueError("resume and overwrite exclude each other")
 

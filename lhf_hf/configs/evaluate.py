@@ -6,6 +6,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from .types import check_types
+
 Context = Literal["cache", "recompute", "window"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 
@@ -41,6 +43,7 @@ class EvalConfig:
     overwrite: bool = False
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.episodes < 1:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
         if self.context not in CONTEXTS:

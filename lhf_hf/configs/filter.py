@@ -7,6 +7,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from .types import check_types
+
 Strategy = Literal["linear", "softmax", "none", "top-fraction"]
 ScanOrder = Literal["descending", "dataset"]
 STRATEGIES: tuple[str, ...] = get_args(Strategy)
@@ -40,6 +42,7 @@ class FilterConfig:
     scan_order: ScanOrder = "descending"
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.strategy not in STRATEGIES:
             raise ValueError(
                 f"FilterConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}"

@@ -10,6 +10,7 @@ from lhf_hf.constants import Objective
 from lhf_hf.utils.hub import validate_repo_id
 
 from .model import LabelPositions, ModelPreset, check_model_fields
+from .types import check_types
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,8 @@ class TrainConfig:
     preset: backbone size: ``paper`` (4/4/32/128), ``lightweight`` (2/2/16/64) or ``tiny`` (tests).
     max_steps: optimiser steps (the reference: 50,000 at batch 512 on a GPU).
     batch_size: windows per optimiser step over all processes (split evenly across them).
-    context_length: transitions per window; None = the env's default (darkroom 80, others 200).
+    context_length: transitions per window; None = the env's default (Darkroom 80, the other
+        gridworlds 200, Meta-World 1000).
     label_positions: ``all`` (a label at every position) or ``query`` (last position only, as the
         reference AD); None = ``all``.
     lr: peak learning rate (paper 1e-2), cosine decay to 0 after ``warmup_steps`` of linear warm-up.
@@ -68,6 +70,8 @@ class TrainConfig:
     hub_private: bool = False
 
     def __post_init__(self) -> None:
+        check_types(self)
+
         def bad(field: str, why: str):
             return ValueError(f"TrainConfig.{field} {why}, got {getattr(self, field)!r}")
 

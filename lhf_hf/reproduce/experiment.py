@@ -43,7 +43,7 @@ SET_BY_RUN = {
         "push_to_hub",
         "hub_private",
     },  # fmt: skip
-    "evaluate": {"model", "out", "plan", "seed", "overwrite"},
+    "evaluate": {"model", "out", "plan", "seed", "split_seed", "overwrite"},
 }
 #: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
 #: how DICP is evaluated.
@@ -122,23 +122,39 @@ class Experiment:
             if unknown:
                 raise ValueError(
                     f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
-                    f"(a {cls.__name__} field: one of {sorted(allowed)})"
+                    f"(one of {sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})"
                 )
         sweep = self.filter.get("sweep")
         if sweep is not None and (
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
         ):
             raise ValueError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
-        # Every config of every stage, built now: a bad value fails before anything runs.
-        for env in self.envs:
-            self.collect_config(env, 0)
-        arms = self.filter_arms(0)
-        for objective in self.objectives:
-            self.train_config(objective, 0, dataset="-", selection=None, out="-")
-        for plan in self.dicp_plan_modes():
-            self.eval_config(0, model="-", out="-", plan=plan)
-        if len({a for a, _ in arms}) != len(arms):
-            raise ValueError(f"{self.name}: filter.sweep values repeat")
+        # Every config of every stage, built now: a bad value fails before anything runs, and
+        # the message says which spec and stage.
+        for stage, build in [
+            ("collect", lambda: [self.collect_config(env, 0) for env in self.envs]),
+            ("filter", lambda: self.filter_arms(0)),
+            (
+                "train",
+                lambda: [
+                    self.train_config(o, 0, dataset="-", selection=None, out="-")
+                    for o in self.objectives
+                ],
+            ),  # fmt: skip
+            (
+                "evaluate",
+                lambda: [
+                    self.eval_config(0, model="-", out="-", plan=p) for p in self.dicp_plan_modes()
+                ],
+            ),  # fmt: skip
+        ]:
+            try:
+                built = build()
+            except (ValueError, TypeError, KeyError) as exc:
+                msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+                raise ValueError(f"{self.name}: {stage}: {msg}") from None
+            if stage == "filter" and len({cfg for _, cfg in built}) != len(built):
+                raise ValueError(f"{self.name}: filter.sweep values repeat (the same config twice)")
 
     # ---- the configs of the stages (one source: the config dataclasses)
     def collect_config(self, env: str, run: int) -> CollectConfig:
@@ -157,8 +173,10 @@ class Experiment:
         if not sweep:
             return [("lhf", FilterConfig(**base, seed=run))]
         key = sweep["key"]
-        if key not in {f.name for f in dataclasses.fields(FilterConfig)} - SET_BY_RUN["filter"]:
-            raise ValueError(f"{self.name}: filter.sweep.key {key!r} is not a FilterConfig field")
+        if key in SET_BY_RUN["filter"]:
+            raise ValueError(f"filter.sweep.key {key!r} is set by each run (run r uses seed r)")
+        if key not in {f.name for f in dataclasses.fields(FilterConfig)}:
+            raise ValueError(f"filter.sweep.key {key!r} is not a FilterConfig field")
         return [(f"{key}={v}", FilterConfig(**{**base, key: v}, seed=run)) for v in sweep["values"]]
 
     def train_config(
@@ -211,8 +229,15 @@ def load_experiment(
         raise KeyError(
             f"unknown experiment {name_or_path!r}: one of {experiment_names()} (or a yaml path)"
         )
-    spec = yaml.safe_load(path.read_text()) or {}
+    try:
+        spec = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path} is not valid YAML: {exc}") from None
+    if not isinstance(spec, dict):
+        raise ValueError(f"{path}: a spec is a mapping of settings, got a {type(spec).__name__}")
     presets = spec.pop("presets", {}) or {}
+    if not isinstance(presets, dict) or not all(isinstance(v, dict) for v in presets.values()):
+        raise ValueError(f"{path}: presets must map each preset name to its settings")
     if preset not in presets:
         raise ValueError(f"{path.stem} has no preset {preset!r} (it has {sorted(presets)})")
     paper = spec.pop("paper", {}) or {}
@@ -223,6 +248,9 @@ def load_experiment(
     for stage in CONFIGS:
         if not isinstance(merged.get(stage, {}), dict):
             raise ValueError(f"{path}: {stage} must be a mapping of settings")
+    for key in ("envs", "objectives"):
+        if not isinstance(merged.get(key, []), list):
+            raise ValueError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
     if runs is not None:
         merged["runs"] = int(runs)
     return Experiment(

@@ -92,20 +92,28 @@ def is_hub_snapshot(path: Path) -> bool:
 
 
 def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
-    """A local folder for ``spec``: the path itself when it exists, else a snapshot of the repo."""
+    """A local folder for ``spec``: the path itself when it exists, else a snapshot of the repo.
+
+    The ``datasets`` convention: a local folder wins, else ``ORG/NAME[@REV]`` is a repo id.  A path
+    with ``./``, ``../``, a leading ``/`` or ``~``, or more than one ``/`` is only ever local.
+    """
     p = Path(spec).expanduser()
     if p.exists():
         return p
     ref = parse_hub_ref(str(spec))
     if ref is None:
         raise FileNotFoundError(
-            f"no {what} at {str(spec)!r}: neither an existing path nor a Hub repo id "
-            "(ORG/NAME[@REVISION])"
+            f"no {what} at {str(spec)!r}: no such local folder (and not of the Hub repo id form "
+            "ORG/NAME[@REVISION])"
         )
     try:
         return download(ref, repo_type)
     except HubError as exc:
-        raise HubError(f"no {what} at {str(spec)!r} locally, and on the Hub: {exc}") from None
+        why = str(exc).splitlines()[0]
+        raise HubError(
+            f"no {what} at {str(spec)!r}: no local folder of that name, and no Hub {repo_type} "
+            f"repo {ref} ({why})"
+        ) from None
 
 
 def download(ref: HubRef, repo_type: str) -> Path:

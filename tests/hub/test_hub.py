@@ -307,9 +307,7 @@ def test_load_errors(fake_hub, olah, hub_client):
         hub_client(olah, CLI, "evaluate", "--model", "lhf-test/no-such-model", "--out", "e"),
         "model repo lhf-test/no-such-model",
     )
-    _fails(
-        hub_client(olah, CLI, "filter", "no/such/thing", "--out", "s"), "neither an existing path"
-    )
+    _fails(hub_client(olah, CLI, "filter", "no/such/thing", "--out", "s"), "no such local folder")
 
 
 def test_repo_ref_parsing():

@@ -84,6 +84,12 @@ def test_spec_errors(tmp_path):
         ("filter", {"strategy": "greedy"}, "FilterConfig.strategy must be one of"),
         ("evaluate", {"context": "all"}, "EvalConfig.context must be one of"),
         ("filter", {"sweep": {"key": "lamda", "values": [1]}}, "sweep.key 'lamda'"),
+        ("filter", {"sweep": {"key": "seed", "values": [1]}}, "set by each run"),
+        ("filter", {"sweep": {"key": "lam", "values": [1, 1.0]}}, "values repeat"),
+        ("collect", {"histories": 2.5}, r"collect: CollectConfig.histories must be an integer"),
+        ("train", {"lr": "1e-3"}, r"TrainConfig.lr must be a number, got '1e-3' \(in YAML"),
+        ("evaluate", {"split_seed": 5}, "evaluate.split_seed is not a setting"),  # run r: split r
+        ("collect", {"ppo": {"nstep": 3}}, "CollectConfig.ppo: unknown setting 'nstep'"),
     ],
 )
 def test_a_bad_stage_setting_fails_at_load(tmp_path, stage, settings, message):
@@ -98,6 +104,18 @@ def test_a_bad_stage_setting_fails_at_load(tmp_path, stage, settings, message):
     preset["presets"]["quick"][stage] = {**preset["presets"]["quick"].get(stage, {}), **settings}
     with pytest.raises(ValueError, match=message):
         load_experiment(_spec(tmp_path, preset, "preset"), "quick")
+
+
+def test_malformed_specs_are_one_clear_error(tmp_path):
+    bad = tmp_path / "broken.yaml"
+    bad.write_text("title: [unclosed\n")
+    with pytest.raises(ValueError, match="broken.yaml is not valid YAML"):
+        load_experiment(str(bad))
+    bad.write_text("- a\n- b\n")
+    with pytest.raises(ValueError, match="a spec is a mapping of settings, got a list"):
+        load_experiment(str(bad))
+    with pytest.raises(ValueError, match=r"envs must be a list, e.g. \[darkroom\]"):
+        load_experiment(_spec(tmp_path, {**TINY, "envs": "darkroom"}, "s"), "quick")
 
 
 def test_stage_configs_take_the_config_defaults(tmp_path):
