@@ -24,6 +24,7 @@ LAYERS = [
     ["lhf_hf.training"],
     ["lhf_hf.evaluation"],
     ["lhf_hf.hub", "lhf_hf.reproduce"],  # orchestration: push dispatch, paper experiments
+    ["lhf_hf.verify"],  # lhf verify: manifests and each kind's deepest check
     ["lhf_hf.cli"],
     ["lhf_hf.__main__"],
 ]

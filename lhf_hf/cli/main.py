@@ -11,10 +11,10 @@ import sys
 
 from lhf_hf import __version__
 
-from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train
+from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train, verify
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
-COMMANDS = [envs, collect, derive, filter, train, evaluate, compare, push, reproduce]
+COMMANDS = [envs, collect, derive, filter, train, evaluate, compare, push, reproduce, verify]
 
 
 def build_parser() -> argparse.ArgumentParser:

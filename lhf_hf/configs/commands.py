@@ -135,3 +135,13 @@ class EnvsOptions:
     oracle: bool = False
     split_seed: int = 0
     metaworld_tasks: int = 2
+
+
+@dataclass(frozen=True)
+class VerifyOptions:
+    """What ``lhf verify`` checks.
+
+    path: an output folder of lhf (a dataset, selection, model, evaluation, comparison or report).
+    """
+
+    path: str

@@ -42,9 +42,9 @@ def _ok(value: Any, hint: Any) -> bool:
 def _name(hint: Any) -> str:
     origin = typing.get_origin(hint)
     if origin is Literal:
-        return "one of " + ", ".join(repr(a) for a in typing.get_args(hint))
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join(_name(h) for h in typing.get_args(hint))
+        return f"one of {typing.get_args(hint)!r}"
+    if origin in (typing.Union, types.UnionType):  # None is "unset": not named
+        return " or ".join(_name(h) for h in typing.get_args(hint) if h is not type(None))
     if origin in (list, tuple):
         (item, *_) = typing.get_args(hint) or (Any,)
         return f"a list of {_name(item)}"

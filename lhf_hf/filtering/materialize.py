@@ -14,15 +14,12 @@ from datasets.table import InMemoryTable
 from lhf_hf import constants as C
 from lhf_hf.histories.derive import write_derived
 
-from .select import Selection
+from .select import Selection, source_mismatch
 
 
 def _check_source(ds, selection: Selection) -> None:
-    fp = selection.source.get("fingerprint")
-    if fp is not None and fp != ds.fingerprint:
-        raise ValueError(
-            f"the selection was made from dataset {fp[:16]}..., not {ds.root} ({ds.fingerprint[:16]}...)"
-        )
+    for problem in source_mismatch(ds, selection):
+        raise ValueError(problem)
 
 
 def apply_selection(ds, selection: Selection) -> datasets.Dataset:

@@ -275,6 +275,26 @@ def histories_fingerprint(ds) -> str:
     return hashlib.sha256((Path(ds.root) / C.HISTORIES_PATH).read_bytes()).hexdigest()
 
 
+def source_mismatch(ds, selection: Selection) -> list[str]:
+    """Why ``selection`` does not belong to dataset ``ds`` (its frames' fingerprint, or the
+    histories table it scored, differ from the recorded ones); [] when it does."""
+    src = selection.source
+    problems = []
+    fp = src.get("fingerprint")
+    if fp is not None and fp != ds.fingerprint:
+        problems.append(
+            f"the selection was made from the dataset with fingerprint {fp[:16]}..., not from "
+            f"{ds.root} (fingerprint {ds.fingerprint[:16]}...): filter this dataset again"
+        )
+    hf = src.get("histories_fingerprint")
+    if not problems and hf is not None and hf != histories_fingerprint(ds):
+        problems.append(
+            f"the histories table of {ds.root} changed since the selection scored it: "
+            "filter this dataset again"
+        )
+    return problems
+
+
 def filter_histories(ds, config: FilterConfig) -> Selection:
     """Run ``config`` on a ``HistoryDataset``; the selection records the source's provenance."""
     scored = score_histories(ds.histories, config.lam, config.r_max, ds.env_id)

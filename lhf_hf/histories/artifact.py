@@ -8,6 +8,7 @@ from lhf_hf import constants as C
 from lhf_hf.utils.hub import HubArtifact
 
 from .card import render_card
+from .checks import check_dataset
 from .reader import HistoryDataset
 
 
@@ -24,6 +25,14 @@ class HistoriesArtifact(HubArtifact):
     @classmethod
     def check(cls, path: Path) -> None:
         HistoryDataset(path).data_files()
+
+    @classmethod
+    def verify(cls, path: Path) -> list[str]:
+        """Every data file hashed against the fingerprint; every task's returns recomputed."""
+        try:
+            return check_dataset(HistoryDataset(path), full=True)
+        except (ValueError, OSError, KeyError) as exc:
+            return [str(exc)]
 
     @classmethod
     def card(cls, path: Path, repo_id: str) -> str:

@@ -15,6 +15,7 @@ from datasets.table import InMemoryTable
 from lhf_hf import constants as C
 from lhf_hf.utils.hub import resolve, source_of
 
+from .checks import check_dataset
 from .schema import TaskHistories, task_histories_from_frames
 
 REQUIRED_FRAME_COLUMNS = (
@@ -86,7 +87,12 @@ class HistoryDataset:
         missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in self.info.get("features", {})]
         if missing:
             raise DatasetFormatError(f"{self.root}: frames lack the columns {missing}")
-        cols = pq.read_schema(self.root / C.HISTORIES_PATH).names
+        try:
+            cols = pq.read_schema(self.root / C.HISTORIES_PATH).names
+        except (OSError, pa.ArrowException) as exc:
+            raise DatasetFormatError(
+                f"{self.root / C.HISTORIES_PATH} is not a readable parquet file ({exc})"
+            ) from None
         missing = [c for c in REQUIRED_HISTORY_COLUMNS if c not in cols]
         if missing:
             raise DatasetFormatError(
@@ -197,6 +203,9 @@ def load_histories(path: str | Path) -> HistoryDataset:
     root = resolve(path, "dataset", "dataset")
     try:
         ds = HistoryDataset(root)
+        problems = check_dataset(ds)  # the quick checks: footers, tables, one task's returns
+        if problems:
+            raise DatasetFormatError(f"{root} is inconsistent: {'; '.join(problems[:3])}")
     except DatasetFormatError as exc:
         if root == Path(path).expanduser():
             raise

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from transformers import AutoConfig
 
+from lhf_hf import constants as C
+from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
 from lhf_hf.utils.hub import HubArtifact
 
@@ -36,6 +38,27 @@ class CheckpointArtifact(HubArtifact):
                 f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)"
             )
         load_model(str(path))
+
+    @classmethod
+    def verify(cls, path: Path) -> list[str]:
+        """The checkpoint loads; the dataset it was trained on, when it is a local folder, still
+        has the recorded fingerprint."""
+        problems = super().verify(path)
+        if problems:
+            return problems
+        data = json.loads((path / TRAIN_CONFIG_FILE).read_text()).get("dataset") or {}
+        source = Path(data.get("path", ""))
+        if source.is_dir() and (source / C.INFO_PATH).exists():
+            try:
+                now = HistoryDataset(source).fingerprint
+            except (ValueError, OSError, KeyError) as exc:
+                return [f"its dataset {source} no longer opens: {exc}"]
+            if now != data.get("fingerprint"):
+                return [
+                    f"its dataset {source} changed since training (fingerprint "
+                    f"{str(data.get('fingerprint'))[:16]} -> {now[:16]})"
+                ]
+        return []
 
     @classmethod
     def card(cls, path: Path, repo_id: str) -> str:

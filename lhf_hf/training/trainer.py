@@ -24,7 +24,7 @@ from transformers.trainer_utils import get_last_checkpoint
 from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
 from lhf_hf.envs import get_spec
-from lhf_hf.filtering.select import SCORES_FILE, load_selection
+from lhf_hf.filtering.select import SCORES_FILE, load_selection, source_mismatch
 from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
 from lhf_hf.utils.hub import resolve, source_of
@@ -32,7 +32,7 @@ from lhf_hf.utils.io import sha256_file, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
-from .card import plot_loss, render_model_card, write_model_card
+from .card import MODEL_EVALS_FILE, plot_loss, render_model_card, write_model_card
 from .collators import make_collator
 from .windows import HistoryArrays, WindowDataset, load_arrays
 
@@ -187,12 +187,10 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
     """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
     local = resolve(selection_dir, "dataset", "selection")
     sel = load_selection(local)
-    fp = sel.source.get("fingerprint")
-    if fp != ds.fingerprint:
-        raise ValueError(
-            f"the selection {selection_dir} was computed on a dataset with fingerprint {str(fp)[:16]}, "
-            f"not on {ds.root} (fingerprint {ds.fingerprint[:16]}): filter this dataset again"
-        )
+    if sel.source.get("fingerprint") is None:
+        raise ValueError(f"the selection {selection_dir} does not record its source dataset")
+    for problem in source_mismatch(ds, sel):
+        raise ValueError(f"{selection_dir}: {problem}")
     counts = sel.counts()
     unknown = set(counts) - set(arrays.history_index.tolist())
     if unknown:
@@ -344,6 +342,7 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
                     inputs=[cfg.dataset, cfg.selection],
                     legacy=MODEL_FILES,
                     resumable=True,
+                    mutable=("README.md", MODEL_EVALS_FILE),  # evaluations update the card
                 )
             )
         resume = None

@@ -275,6 +275,15 @@ class HubArtifact(ABC):
         """Open ``path`` the way its readers will; raise when it is broken or unfinished."""
 
     @classmethod
+    def verify(cls, path: Path) -> list[str]:
+        """Problems found by the deepest check of the kind (``lhf verify``); [] when sound."""
+        try:
+            cls.check(path)
+        except (ValueError, OSError, KeyError) as exc:
+            return [str(exc)]
+        return []
+
+    @classmethod
     @abstractmethod
     def card(cls, path: Path, repo_id: str) -> str:
         """The README.md the pushed artifact carries, with load snippets naming ``repo_id``."""

@@ -11,6 +11,9 @@ evaluate, compare, reproduce):
   (someone's files, an artifact of another kind) is never written into or deleted.
 - The folder may not be or contain an input of the same command (replacing it would delete the
   input); a folder inside an input is allowed (``lhf evaluate --model m --out m/eval``).
+- On success the marker records every file's SHA-256 (a manifest; hidden files and the ``mutable``
+  ones, e.g. a model card that later evaluations update, left out): ``check_manifest`` and
+  ``lhf verify`` find what changed since.
 - ``overwrite`` is atomic at the folder level: the old artifact is renamed aside
   (``.NAME.replaced-PID``), the new one is written under the name, and the old one is deleted only
   once the command succeeded; an error or Ctrl-C puts the old one back.  A killed process leaves
@@ -30,7 +33,7 @@ from pathlib import Path
 
 from lhf_hf import __version__
 
-from .io import write_json_atomic
+from .io import sha256_file, write_json_atomic
 
 MARKER = ".lhf_output.json"
 
@@ -83,6 +86,54 @@ def check_not_an_input(out: Path, inputs: Iterable[str | Path | None]) -> None:
             )
 
 
+def _listed_files(root: Path, mutable: Iterable[str]) -> list[Path]:
+    """Files a manifest covers: not hidden, not ``mutable``, and not inside a nested artifact
+    (a subfolder with its own marker, e.g. ``lhf evaluate --out MODEL/eval``)."""
+    skip = set(mutable)
+    out = []
+    for folder, dirs, files in os.walk(root):
+        here = Path(folder)
+        dirs[:] = [d for d in dirs if not d.startswith(".") and not (here / d / MARKER).exists()]
+        for name in files:
+            rel = (here / name).relative_to(root)
+            if not name.startswith(".") and str(rel) not in skip:
+                out.append(rel)
+    return sorted(out)
+
+
+def record_manifest(out: Path, kind: str, mutable: Iterable[str] = ()) -> None:
+    """Write the marker with the SHA-256 of every file of ``out`` (hidden and ``mutable`` ones
+    left out)."""
+    mutable = sorted(mutable)
+    files = {str(rel): sha256_file(out / rel) for rel in _listed_files(out, mutable)}
+    marker = {"kind": kind, "lhf_hf": __version__, "mutable": mutable, "files": files}
+    write_json_atomic(marker, out / MARKER)
+
+
+def check_manifest(path: str | Path) -> tuple[str | None, list[str]]:
+    """(kind, problems) of a folder against its marker's manifest: files missing, changed or
+    added since the command that wrote it ended.  No manifest: (kind or None, [a note])."""
+    path = Path(path)
+    try:
+        marker = json.loads((path / MARKER).read_text())
+    except (OSError, ValueError):
+        return None, [f"{path} has no {MARKER} (written before manifests, or not by lhf_hf)"]
+    files = marker.get("files")
+    if files is None:
+        return marker.get("kind"), [f"{path}: unfinished (its command has not ended)"]
+    problems = []
+    for rel, digest in sorted(files.items()):
+        f = path / rel
+        if not f.is_file():
+            problems.append(f"{rel}: missing")
+        elif sha256_file(f) != digest:
+            problems.append(f"{rel}: changed (SHA-256 differs from the recorded one)")
+    for rel in _listed_files(path, marker.get("mutable", ())):
+        if str(rel) not in files:
+            problems.append(f"{rel}: added after the folder was written")
+    return marker.get("kind"), problems
+
+
 @contextmanager
 def _lock(out: Path) -> Iterator[None]:
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -118,6 +169,7 @@ def output_folder(
     inputs: Iterable[str | Path | None] = (),
     legacy: Iterable[str] = (),
     resumable: bool = False,
+    mutable: Iterable[str] = (),
 ) -> Iterator[Path]:
     """Claim ``out`` for writing an artifact of ``kind`` (see the module docstring).
 
@@ -127,6 +179,7 @@ def output_folder(
     legacy: files (glob patterns) that mark an artifact of ``kind`` written before the marker
         existed.
     resumable: the command can continue an interrupted run (named in the error message).
+    mutable: files (relative paths) other commands update later: left out of the manifest.
     """
     out = Path(out)
     if resume and overwrite:
@@ -165,8 +218,8 @@ def output_folder(
             if replaced is not None:
                 os.replace(replaced, out)
             raise OutputError(f"cannot create the output folder {out}: {exc.strerror}") from None
-        if _marker_kind(out) is None:
-            write_json_atomic({"kind": kind, "lhf_hf": __version__}, out / MARKER)
+        # in progress: no manifest until the command ends (a resumed folder's old one is dropped)
+        write_json_atomic({"kind": kind, "lhf_hf": __version__}, out / MARKER)
         try:
             yield out
         except BaseException:
@@ -176,5 +229,6 @@ def output_folder(
             elif created and {p.name for p in out.iterdir()} <= {MARKER}:
                 shutil.rmtree(out, ignore_errors=True)  # failed before writing: leave nothing
             raise
+        record_manifest(out, kind, mutable)
         if replaced is not None:
             shutil.rmtree(replaced, ignore_errors=True)

@@ -26,14 +26,14 @@ def test_resume_redoes_whole_chunks_identically(tmp_path):
     full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
     out = tmp_path / "partial"
     from lhf_hf.collection.batched_collector import collect_chunk, resolve_ppo_backend
-    from lhf_hf.histories.writer import prepare_output, write_task
+    from lhf_hf.histories.writer import claim_dataset, write_task
 
     cfg = CollectConfig(**CFG)
     cfg.ppo_backend = resolve_ppo_backend(cfg)  # as collect() does before writing
-    prepare_output(out, cfg.identity())
-    # chunk 0 (positions 0, 1) fully committed, chunk 1 (position 2) missing: as after a kill
-    for p, th in zip([0, 1], collect_chunk(cfg, [5, 6], 0), strict=True):
-        write_task(out, p, th, cfg.horizon)
+    with claim_dataset(out, cfg.identity()):
+        # chunk 0 (positions 0, 1) fully committed, chunk 1 (position 2) missing: as after a kill
+        for p, th in zip([0, 1], collect_chunk(cfg, [5, 6], 0), strict=True):
+            write_task(out, p, th, cfg.horizon)
     resumed = collect(cfg, out, resume=True, progress=False)
     assert resumed.fingerprint == full.fingerprint
 

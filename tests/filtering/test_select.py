@@ -90,7 +90,7 @@ def test_selection_from_another_dataset_is_refused(selection, small_darkroom, tm
     other = type(selection)(
         selection.table, selection.config, {**selection.source, "fingerprint": "0" * 64}
     )
-    with pytest.raises(ValueError, match="selection was made from dataset"):
+    with pytest.raises(ValueError, match="selection was made from the dataset with fingerprint"):
         apply_selection(small_darkroom, other)
 
 

@@ -1,0 +1,55 @@
+"""``verify(path)``: is an lhf output folder what its command wrote, and does it still hold together?
+
+Two checks: the manifest (every file's SHA-256, recorded in ``.lhf_output.json`` when the command
+that wrote the folder ended: missing, changed and added files) and the kind's own deepest check
+(a dataset: every data file hashed against its fingerprint and every task's returns recomputed from
+its rewards; a selection: its source dataset unchanged; a checkpoint: it loads and its dataset is
+unchanged).  Folders written before manifests get the second check only, and a note.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from lhf_hf.filtering.artifact import SelectionArtifact
+from lhf_hf.histories.artifact import HistoriesArtifact
+from lhf_hf.hub import artifact_for
+from lhf_hf.training.artifact import CheckpointArtifact
+from lhf_hf.utils.hub import HubArtifact
+from lhf_hf.utils.outputs import MARKER, check_manifest
+
+#: output-folder kind (``utils.outputs``) -> the artifact that checks it (the others: manifest only)
+CHECKS: dict[str, type[HubArtifact]] = {
+    "dataset": HistoriesArtifact,
+    "selection": SelectionArtifact,
+    "model": CheckpointArtifact,
+}
+
+
+def verify(path: str | Path) -> dict:
+    """``{path, kind, manifest, problems}``: ``problems`` is empty when the folder is sound."""
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"no folder at {path}")
+    kind, problems = check_manifest(path)
+    manifest = kind is not None
+    notes = [] if manifest else problems  # an older folder: no manifest to check, only a note
+    problems = problems if manifest else []
+    artifact = CHECKS.get(kind) if kind else None
+    if artifact is None and kind is None:
+        try:
+            artifact = artifact_for(path)
+        except ValueError:
+            raise ValueError(
+                f"{path} is not an lhf output folder (no {MARKER} and no artifact files)"
+            ) from None
+        kind = next(k for k, a in CHECKS.items() if a is artifact)
+    if artifact is not None:
+        problems += artifact.verify(path)
+    return {
+        "path": str(path),
+        "kind": kind,
+        "manifest": manifest,
+        "notes": notes,
+        "problems": problems,
+    }

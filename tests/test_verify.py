@@ -1,0 +1,160 @@
+"""lhf verify and the checks on load: a changed, inconsistent or foreign artifact is named, not used."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from lhf_hf import constants as C
+from lhf_hf.cli.main import main
+from lhf_hf.histories.reader import DatasetFormatError, load_histories
+from lhf_hf.verify import verify
+
+
+@pytest.fixture()
+def data(small_darkroom_batched, tmp_path):
+    root = tmp_path / "data"
+    shutil.copytree(small_darkroom_batched.root, root)
+    return root
+
+
+def _rewrite(path, fn):
+    table = pq.read_table(path)
+    pq.write_table(fn(table), path)
+
+
+def test_a_sound_dataset_verifies(data, capsys):
+    r = verify(data)
+    assert (r["kind"], r["manifest"], r["problems"]) == ("dataset", True, [])
+    assert main(["verify", str(data)]) == 0
+    assert "(dataset): ok" in capsys.readouterr().out
+
+
+def test_changed_frames_are_found(data, capsys):
+    """One reward changed in a data file: the manifest, the fingerprint and the returns say so."""
+    f = data / C.DATA_PATH.format(chunk_index=0, file_index=1)
+
+    def bump(t):
+        r = t.column(C.REWARD).to_numpy().copy()
+        r[5] += 1.0
+        return t.set_column(t.schema.get_field_index(C.REWARD), C.REWARD, pa.array(r))
+
+    _rewrite(f, bump)
+    problems = verify(data)["problems"]
+    assert any("file-001.parquet: changed" in p for p in problems)
+    assert any("fingerprint" in p for p in problems)
+    assert any("not its frames' reward sums" in p for p in problems)
+    assert main(["verify", str(data)]) == 1
+    assert "problem(s)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (
+            lambda t: t.set_column(
+                t.schema.get_field_index(C.RETURNS),
+                C.RETURNS,
+                pa.array(
+                    [[float("nan")] * len(r) for r in t.column(C.RETURNS).to_pylist()],
+                    type=pa.list_(pa.float32()),
+                ),
+            ),  # fmt: skip
+            "returns contain NaN or infinite values",
+        ),
+        (
+            lambda t: t.set_column(
+                t.schema.get_field_index(C.TASK_INDEX),
+                C.TASK_INDEX,
+                pa.array(np.full(t.num_rows, 7, np.int64)),
+            ),  # fmt: skip
+            "task_index values do not match",
+        ),
+    ],
+)
+def test_an_inconsistent_histories_table_is_refused_on_load(data, damage, message):
+    _rewrite(data / C.HISTORIES_PATH, damage)
+    with pytest.raises(DatasetFormatError, match=message):
+        load_histories(data)
+
+
+def test_info_totals_missing_columns_and_corrupt_files_are_named(data):
+    info = json.loads((data / C.INFO_PATH).read_text())
+    info["total_frames"] += 1
+    (data / C.INFO_PATH).write_text(json.dumps(info))
+    with pytest.raises(DatasetFormatError, match="info.json says"):
+        load_histories(data)
+    info["total_frames"] -= 1
+    (data / C.INFO_PATH).write_text(json.dumps(info))
+    f = data / C.DATA_PATH.format(chunk_index=0, file_index=2)
+    _rewrite(f, lambda t: t.drop_columns([C.NEXT_OBS]))
+    with pytest.raises(
+        DatasetFormatError,
+        match=r"file-002.parquet: lacks the frame columns \['next.observation.state'\]",
+    ):
+        load_histories(data)
+    (data / C.HISTORIES_PATH).write_bytes(b"PAR1 truncated")
+    with pytest.raises(
+        DatasetFormatError, match=r"histories/chunk-000/file-000.parquet is not a readable parquet"
+    ):
+        load_histories(data)
+
+
+def test_a_selection_of_another_histories_table_is_refused(data, tmp_path, capsys):
+    sel = tmp_path / "sel"
+    assert main(["filter", str(data), "--out", str(sel)]) == 0
+    assert verify(sel)["problems"] == []
+    # same frames, histories rows reordered: the frames' fingerprint is unchanged, the table not
+    _rewrite(data / C.HISTORIES_PATH, lambda t: t.take(pa.array(np.arange(t.num_rows)[::-1])))
+    capsys.readouterr()
+    args = ["train", "--dataset", str(data), "--selection", str(sel), "--objective", "ad",
+            "--preset", "tiny", "--max-steps", "2", "--batch-size", "2", "--out", str(tmp_path / "m")]  # fmt: skip
+    assert main(args) == 1
+    assert "histories table of" in capsys.readouterr().err
+    assert any("histories table" in p for p in verify(sel)["problems"])
+
+
+def test_models_verify_and_pickles_are_refused(data, tmp_path, capsys):
+    model = tmp_path / "m"
+    args = ["train", "--dataset", str(data), "--objective", "ad", "--preset", "tiny",
+            "--max-steps", "2", "--batch-size", "2", "--out", str(model)]  # fmt: skip
+    assert main(args) == 0
+    ev = [
+        "evaluate",
+        "--model",
+        str(model),
+        "--episodes",
+        "1",
+        "--tasks",
+        "3",
+        "--out",
+        str(model / "eval"),
+    ]
+    assert main(ev) == 0  # updates the card: mutable, and eval/ is its own artifact
+    assert verify(model)["problems"] == [] and verify(model / "eval")["problems"] == []
+    (model / "model.safetensors").write_bytes(
+        (model / "model.safetensors").read_bytes()[:-8] + b"\0" * 8
+    )
+    assert any("model.safetensors: changed" in p for p in verify(model)["problems"])
+    pickled = tmp_path / "pickled"
+    pickled.mkdir()
+    shutil.copy(model / "config.json", pickled / "config.json")
+    (pickled / "pytorch_model.bin").write_bytes(b"not loaded")
+    capsys.readouterr()
+    assert main(["evaluate", "--model", str(pickled), "--out", str(tmp_path / "e")]) == 1
+    err = capsys.readouterr().err
+    assert "pickled weights (pytorch_model.bin) only" in err and "Traceback" not in err
+
+
+def test_verify_errors(tmp_path, capsys):
+    assert main(["verify", str(tmp_path / "none")]) == 1
+    assert "no folder at" in capsys.readouterr().err
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "a.txt").write_text("a")
+    assert main(["verify", str(tmp_path / "x")]) == 1
+    assert "not an lhf output folder" in capsys.readouterr().err
