@@ -120,6 +120,13 @@ def test_a_file_is_not_a_folder(tmp_path):
             pass
 
 
+def test_an_output_under_a_file_is_a_clear_error(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputError, match="cannot write the output folder .*sub: File exists"):
+        with output_folder(tmp_path / "f" / "sub", "model"):
+            pass
+
+
 def test_unwritable_parent_is_a_clear_error(tmp_path):
     if os.geteuid() == 0:
         pytest.skip("root writes anywhere")
