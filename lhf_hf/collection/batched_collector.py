@@ -23,7 +23,7 @@ from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec, make_batched
 from lhf_hf.histories.schema import TaskHistories
 
-from . import native
+from . import backend_verdict, native
 from .batched_ppo import HIDDEN, Rollout, StackedPolicy, gae, make_optimizer
 from .ppo_backends import ppo_update
 
@@ -41,18 +41,35 @@ def check_device(name: str) -> torch.device:
 
 
 def resolve_ppo_backend(config: CollectConfig) -> str:
-    """``config.ppo_backend`` with ``auto`` decided: ``kernel`` on the CPU where it builds, else
-    ``torch`` (logged).  ``kernel`` that cannot build raises ``KernelUnavailable`` here."""
+    """``config.ppo_backend`` with ``auto`` decided (logged): on the CPU, the backend this machine
+    runs faster (``backend_verdict``: measured once, cached), ``torch`` where the kernel does not
+    build.  ``kernel`` that cannot build raises ``KernelUnavailable`` here."""
     if config.ppo_backend == "torch" or config.device != "cpu":
         return "torch"
     try:
         native.load(HIDDEN[0])
+        if config.ppo_backend == "kernel":
+            return "kernel"
+        spec = get_spec(config.env_id)
+        v = backend_verdict.verdict(spec.state_space.shape[0], spec.action_space.n)
     except native.KernelUnavailable as e:
         if config.ppo_backend == "kernel":
             raise
         logger.warning("batched collector: PPO updates with torch ops (%s)", e)
         return "torch"
-    return "kernel"
+    logger.info(
+        "batched collector: PPO with %s: %.2f ms (kernel) vs %.2f ms (torch) per minibatch step "
+        "on %s (%s, %d threads; %s %s)",
+        "the C++ kernel" if v["choice"] == "kernel" else "torch ops",
+        v["kernel_ms"],
+        v["torch_ms"],
+        v["cpu"],
+        v["isa"],
+        v["threads"],
+        "cached in" if v["cached"] else "measured now, cached in",
+        v["path"],
+    )
+    return v["choice"]
 
 
 def chunk_seed(seed: int, chunk: int, size: int) -> int:

@@ -34,6 +34,7 @@ from lhf_hf.histories.writer import (
 )
 from lhf_hf.utils.versions import library_versions
 
+from . import backend_verdict
 from .batched_collector import check_device, collect_chunk, resolve_ppo_backend
 from .sb3_collector import collect_and_write_task
 
@@ -104,6 +105,15 @@ def lhf_metadata(config: CollectConfig) -> dict:
         "the value of the final state)",
         "versions": library_versions(extra),
         "derived_from": None,
+        # where it ran: not part of the identity (the data are the same on any such machine)
+        "machine": {
+            **backend_verdict.machine(),
+            **(
+                {"ppo_backend": config.ppo_backend, "ppo_verdict": backend_verdict.last_verdict()}
+                if config.collector == "batched"
+                else {}
+            ),
+        },
     }
 
 
@@ -175,7 +185,8 @@ def _run_batched(
         n_mine - sum(len(chunks[c]) for c in todo),
         ranks,
         progress,
-        f"batched, {torch_threads()} torch threads",
+        f"batched, PPO by {'the C++ kernel' if config.ppo_backend == 'kernel' else 'torch ops'}, "
+        f"{torch_threads()} torch threads",
     )
     # A chunk's tasks are written by ``workers`` threads (each task has its own files; parquet
     # encoding and hashing release the GIL) in the background while the next chunk collects: writing
