@@ -8,8 +8,9 @@ from pathlib import Path
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
 from lhf_hf.histories.reader import load_histories
+from lhf_hf.histories.writer import DATASET_FILES
 from lhf_hf.utils.io import write_text_atomic
-from lhf_hf.utils.outputs import output_folder
+from lhf_hf.utils.outputs import output_folder, preflight
 
 from .card import render_selection_card
 from .materialize import materialize as materialize_histories
@@ -32,6 +33,15 @@ def run_filter(
     Returns the summary (counts, learner shares, mean returns of selected vs rejected, timings).
     """
     out = Path(out)
+    if materialize is not None:  # refuse a bad --materialize before the selection is written
+        preflight(
+            materialize,
+            "dataset",
+            overwrite=overwrite,
+            inputs=[dataset, out],
+            legacy=DATASET_FILES,
+            resumable=True,
+        )
     with output_folder(
         out, "selection", overwrite=overwrite, inputs=[dataset, materialize], legacy=[CONFIG_FILE]
     ):

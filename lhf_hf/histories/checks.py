@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 
 from lhf_hf import constants as C
 from lhf_hf.utils.io import sha256_file
+from lhf_hf.utils.outputs import check_manifest
 
 #: |recomputed - recorded| tolerance of a return: float32 storage of a float64 sum.
 RETURN_ATOL = 1e-3
@@ -116,9 +117,18 @@ def _returns_of_task(ds, task: int) -> list[str]:
     return []
 
 
+def _meta_files(ds) -> list[str]:
+    """The small meta files (tables, info, stats) against the manifest recorded when the dataset
+    was written: cheap enough for every load (the data files are hashed by ``lhf verify``)."""
+    kind, problems = check_manifest(ds.root, prefix="meta/")
+    if kind is None:
+        return []  # written before manifests: the consistency checks below still run
+    return [p for p in problems if not p.endswith("unfinished (its command has not ended)")]
+
+
 def check_dataset(ds, full: bool = False) -> list[str]:
     """Problems of dataset ``ds`` (an empty list when it is consistent); see the module docstring."""
-    problems = _footers(ds) + _tables(ds)
+    problems = _meta_files(ds) + _footers(ds) + _tables(ds)
     if problems:
         return problems
     tasks = [int(t) for t in ds.lhf["tasks"]]

@@ -8,6 +8,7 @@ from pathlib import Path
 from transformers import AutoConfig
 
 from lhf_hf import constants as C
+from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
 from lhf_hf.utils.hub import HubArtifact
@@ -32,7 +33,7 @@ class CheckpointArtifact(HubArtifact):
     @classmethod
     def check(cls, path: Path) -> None:
         if not (path / "model.safetensors").exists():
-            raise ValueError(f"{path}: no weights (model.safetensors) to push")
+            raise ValueError(f"{path}: no weights (model.safetensors)")
         if not (path / TRAIN_CONFIG_FILE).exists():
             raise ValueError(
                 f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)"
@@ -58,6 +59,8 @@ class CheckpointArtifact(HubArtifact):
                     f"its dataset {source} changed since training (fingerprint "
                     f"{str(data.get('fingerprint'))[:16]} -> {now[:16]})"
                 ]
+            # the dataset's own deepest check: frames against the fingerprint it records
+            return [f"its dataset {source}: {p}" for p in HistoriesArtifact.verify(source)]
         return []
 
     @classmethod

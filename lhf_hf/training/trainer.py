@@ -316,8 +316,9 @@ def check_resume(checkpoint: str, identity: dict) -> None:
     for part in ("train", "model"):
         for k in sorted(set(old.get(part, {})) | set(identity[part])):
             a, b = old.get(part, {}).get(k), identity[part].get(k)
-            if a != b:
-                diff.append(f"{k}: {a!r} -> {b!r}")
+            line = f"{k}: {a!r} -> {b!r}"
+            if a != b and line not in diff:  # objective etc. are in both parts: named once
+                diff.append(line)
     for k in ("dataset_fingerprint", "selection_fingerprint"):
         if old.get(k) != identity[k]:
             diff.append(f"{k.split('_')[0]}: {str(old.get(k))[:16]} -> {str(identity[k])[:16]}")

@@ -110,9 +110,10 @@ def record_manifest(out: Path, kind: str, mutable: Iterable[str] = ()) -> None:
     write_json_atomic(marker, out / MARKER)
 
 
-def check_manifest(path: str | Path) -> tuple[str | None, list[str]]:
+def check_manifest(path: str | Path, prefix: str | None = None) -> tuple[str | None, list[str]]:
     """(kind, problems) of a folder against its marker's manifest: files missing, changed or
-    added since the command that wrote it ended.  No manifest: (kind or None, [a note])."""
+    added since the command that wrote it ended.  No manifest: (kind or None, [a note]).
+    ``prefix``: only the recorded files under it (e.g. ``meta/``), and no added-file check."""
     path = Path(path)
     try:
         marker = json.loads((path / MARKER).read_text())
@@ -122,13 +123,15 @@ def check_manifest(path: str | Path) -> tuple[str | None, list[str]]:
     if files is None:
         return marker.get("kind"), [f"{path}: unfinished (its command has not ended)"]
     problems = []
+    if prefix is not None:
+        files = {rel: d for rel, d in files.items() if rel.startswith(prefix)}
     for rel, digest in sorted(files.items()):
         f = path / rel
         if not f.is_file():
             problems.append(f"{rel}: missing")
         elif sha256_file(f) != digest:
             problems.append(f"{rel}: changed (SHA-256 differs from the recorded one)")
-    for rel in _listed_files(path, marker.get("mutable", ())):
+    for rel in [] if prefix is not None else _listed_files(path, marker.get("mutable", ())):
         if str(rel) not in files:
             problems.append(f"{rel}: added after the folder was written")
     return marker.get("kind"), problems
@@ -164,6 +167,65 @@ def _stale_replacements(out: Path) -> list[Path]:
     return sorted(out.parent.glob(f".{out.name}.replaced-*"))
 
 
+def _content(path: Path) -> list[Path]:
+    """What a folder holds, lock files of nested outputs left out (they are not content)."""
+    return [p for p in path.iterdir() if not (p.name.startswith(".") and p.name.endswith(".lock"))]
+
+
+def preflight(
+    out: str | Path,
+    kind: str,
+    *,
+    overwrite: bool = False,
+    resume: bool = False,
+    inputs: Iterable[str | Path | None] = (),
+    legacy: Iterable[str] = (),
+    resumable: bool = False,
+) -> Path:
+    """The checks of ``output_folder`` without writing anything: whether ``out`` may be written
+    as asked (raises ``OutputError`` if not).  Returns the real path (symlinks resolved)."""
+    if resume and overwrite:
+        raise ValueError("resume and overwrite exclude each other")
+    given = Path(out)
+    if given.exists() and not given.is_dir():
+        raise OutputError(f"{given} is a file, not a folder: choose another output")
+    real = given.resolve()  # a symlinked output is its target: one lock, no renamed link
+    check_not_an_input(real, inputs)
+    if real.is_dir() and _content(real):
+        marked = _marker_kind(real)
+        if not holds_kind(real, kind, legacy):
+            action = "replace" if overwrite else "write into"
+            raise OutputError(
+                f"{given} holds {describe(real)}, not an lhf {kind}: refusing to {action} it; "
+                "choose another output"
+            )
+        if overwrite and marked is None:
+            # files that look like an older lhf artifact may be someone's own: never deleted
+            raise OutputError(
+                f"{given} has no {MARKER} (written before lhf_hf marked its outputs, or not by "
+                f"lhf_hf): refusing to replace it; delete it yourself if it is yours"
+            )
+        if not overwrite and not resume:
+            hint = "--resume to continue it or " if resumable else ""
+            raise OutputError(
+                f"{given} already holds an lhf {kind}: pass {hint}--overwrite to replace it, "
+                "or choose another output"
+            )
+    return real
+
+
+def _stale_note(out: Path, kind: str) -> None:
+    for stale in _stale_replacements(out):
+        _, problems = check_manifest(stale)
+        state = "complete (its manifest checks)" if not problems else "incomplete"
+        print(
+            f"lhf: note: {stale} is an earlier {kind} of {out}, {state}, set aside by an "
+            f"interrupted --overwrite: restore it with `rm -rf {out} && mv {stale} {out}`, or "
+            "delete it",
+            file=sys.stderr,
+        )
+
+
 @contextmanager
 def output_folder(
     out: str | Path,
@@ -179,61 +241,64 @@ def output_folder(
     """Claim ``out`` for writing an artifact of ``kind`` (see the module docstring).
 
     kind: ``dataset``, ``selection``, ``model``, ``evaluation``, ``comparison``, ``report``.
-    overwrite / resume: what may happen to an existing artifact of the same kind.
+    overwrite / resume: what may happen to an existing artifact of the same kind (a folder
+        without a marker is never replaced; it may be resumed when its ``legacy`` files say so).
     inputs: the command's local inputs (paths; Hub ids and None are skipped).
     legacy: files (glob patterns) that mark an artifact of ``kind`` written before the marker
         existed.
     resumable: the command can continue an interrupted run (named in the error message).
     mutable: files (relative paths) other commands update later: left out of the manifest.
     """
-    out = Path(out)
-    if resume and overwrite:
-        raise ValueError("resume and overwrite exclude each other")
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out} is a file, not a folder: choose another output")
-    check_not_an_input(out, inputs)
-    with _lock(out):
-        for stale in _stale_replacements(out):
-            print(
-                f"lhf: note: {stale} is an earlier {kind} of {out} left by an interrupted "
-                "--overwrite (delete it once the new one is good)",
-                file=sys.stderr,
-            )
+    checks = dict(overwrite=overwrite, resume=resume, inputs=inputs, legacy=legacy)
+    real = preflight(out, kind, resumable=resumable, **checks)
+    with _lock(real):
+        preflight(out, kind, resumable=resumable, **checks)  # again, now that we hold the lock
+        _stale_note(real, kind)
         replaced = None
-        if out.is_dir() and any(out.iterdir()):
-            if not holds_kind(out, kind, legacy):
-                action = "replace" if overwrite else "write into"
-                raise OutputError(
-                    f"{out} holds {describe(out)}, not an lhf {kind}: refusing to {action} it; "
-                    "choose another output"
-                )
-            if overwrite:
-                replaced = out.parent / f".{out.name}.replaced-{os.getpid()}"
-                os.replace(out, replaced)  # atomic: the old artifact is whole until success
-            elif not resume:
-                hint = "--resume to continue it or " if resumable else ""
-                raise OutputError(
-                    f"{out} already holds an lhf {kind}: pass {hint}--overwrite to replace it, "
-                    "or choose another output"
-                )
-        created = not out.exists()
+        if overwrite and real.is_dir() and _content(real):
+            replaced = real.parent / f".{real.name}.replaced-{os.getpid()}"
+            os.replace(real, replaced)  # atomic: the old artifact is whole until success
+        created = not real.exists()
         try:
-            out.mkdir(parents=True, exist_ok=True)
+            real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             if replaced is not None:
-                os.replace(replaced, out)
+                os.replace(replaced, real)
             raise OutputError(f"cannot create the output folder {out}: {exc.strerror}") from None
+        marker = real / MARKER
+        before = marker.read_text() if marker.exists() else None
         # in progress: no manifest until the command ends (a resumed folder's old one is dropped)
-        write_json_atomic({"kind": kind, "lhf_hf": __version__}, out / MARKER)
+        write_json_atomic({"kind": kind, "lhf_hf": __version__}, marker)
         try:
-            yield out
+            yield real
         except BaseException:
             if replaced is not None:  # put the old artifact back: nothing lost
-                shutil.rmtree(out, ignore_errors=True)
-                os.replace(replaced, out)
-            elif created and {p.name for p in out.iterdir()} <= {MARKER}:
-                shutil.rmtree(out, ignore_errors=True)  # failed before writing: leave nothing
+                shutil.rmtree(real, ignore_errors=True)
+                os.replace(replaced, real)
+            elif created and {p.name for p in real.iterdir()} <= {MARKER}:
+                shutil.rmtree(real, ignore_errors=True)  # failed before writing: leave nothing
+            else:
+                _restore_marker(real, before)
             raise
-        record_manifest(out, kind, mutable)
+        record_manifest(real, kind, mutable)
         if replaced is not None:
             shutil.rmtree(replaced, ignore_errors=True)
+
+
+def _restore_marker(real: Path, before: str | None) -> None:
+    """After a failed run in an existing folder: no marker where there was none (a refused
+    --resume leaves someone's folder as it was); the old manifest back when nothing changed."""
+    marker = real / MARKER
+    if before is None:
+        marker.unlink(missing_ok=True)
+        return
+    try:
+        old = json.loads(before)
+    except ValueError:
+        return
+    files = old.get("files")
+    if files is not None and all(
+        (real / rel).is_file() and sha256_file(real / rel) == digest
+        for rel, digest in files.items()
+    ):
+        write_json_atomic(old, marker)

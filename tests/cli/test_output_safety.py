@@ -105,3 +105,39 @@ def test_a_file_as_out_is_one_clear_line(data, tmp_path, capsys):
     assert main(["filter", str(data), "--out", str(f)]) == 1
     err = capsys.readouterr().err
     assert "is a file, not a folder" in err and "Traceback" not in err
+
+
+def test_a_refused_materialize_writes_no_selection(data, tmp_path, capsys):
+    sel = tmp_path / "sel"
+    assert (
+        main(["filter", str(data), "--out", str(sel), "--materialize", str(data), "--overwrite"])
+        == 1
+    )
+    assert "is the input" in capsys.readouterr().err
+    assert not sel.exists()
+
+
+def test_sigterm_during_overwrite_puts_the_old_model_back(data, tmp_path):
+    """kill -TERM (what `timeout` and `docker stop` send) cleans up like Ctrl-C."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    model = tmp_path / "m"
+    assert main(["train", "--dataset", str(data), "--out", str(model), *TRAIN]) == 0
+    before = _tree_digest(model)
+    cmd = [sys.executable, "-m", "lhf_hf", "train", "--dataset", str(data), "--out", str(model),
+           "--overwrite", "--objective", "ad", "--preset", "tiny", "--max-steps", "100000",
+           "--batch-size", "2"]  # fmt: skip
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".m.replaced-*")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(2)  # inside training
+    os.kill(p.pid, signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert "terminated" in err and "Traceback" not in err
+    assert _tree_digest(model) == before and not list(tmp_path.glob(".m.replaced-*"))

@@ -66,15 +66,56 @@ def test_same_kind_needs_resume_or_overwrite(tmp_path):
     assert not list(tmp_path.glob(".m.replaced-*"))  # the old one is gone once the new is done
 
 
-def test_legacy_artifacts_are_recognised_by_their_files(tmp_path):
-    old = tmp_path / "old"
-    old.mkdir()
-    (old / "filter_config.json").write_text("{}")
-    with output_folder(old, "selection", overwrite=True, legacy=["filter_config.json"]):
+def test_unmarked_folders_are_resumed_at_most_never_replaced(tmp_path):
+    """Files that look like an older artifact (config.json, checkpoint-*) may be someone's own
+    model: resumed when asked, never deleted."""
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / "checkpoint-4").mkdir()
+    (ck / "weights.bin").write_text("theirs")
+    with pytest.raises(OutputError, match="has no .lhf_output.json .* refusing to replace it"):
+        with output_folder(ck, "model", overwrite=True, legacy=["checkpoint-*"]):
+            pass
+    assert (ck / "weights.bin").read_text() == "theirs"
+    with output_folder(ck, "model", resume=True, legacy=["checkpoint-*"]):
         pass
-    (tmp_path / "ck").mkdir()
-    (tmp_path / "ck" / "checkpoint-4").mkdir()
-    with output_folder(tmp_path / "ck", "model", resume=True, legacy=["checkpoint-*"]):
+
+
+def test_a_refused_run_leaves_an_existing_folder_as_it_was(tmp_path):
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "config.json").write_text("{}")
+    with pytest.raises(RuntimeError):
+        with output_folder(theirs, "model", resume=True, legacy=["config.json"]):
+            raise RuntimeError("not our format after all")
+    assert _files(theirs) == ["config.json"]  # no marker stamped into it
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("w")
+    manifest = (m / MARKER).read_text()
+    with pytest.raises(RuntimeError):
+        with output_folder(m, "model", resume=True):
+            raise RuntimeError("refused before writing")
+    assert (m / MARKER).read_text() == manifest  # still complete, still verifiable
+
+
+def test_a_symlinked_output_is_its_target(tmp_path):
+    with output_folder(tmp_path / "real", "model") as real:
+        (real / "w").write_text("old")
+    (tmp_path / "link").symlink_to(real)
+    with output_folder(tmp_path / "link", "model", overwrite=True) as got:
+        assert got == real.resolve()
+        (got / "w").write_text("new")
+    assert (tmp_path / "link").is_symlink() and (real / "w").read_text() == "new"
+    assert not list(tmp_path.glob(".*replaced*"))
+
+
+def test_lock_files_are_not_content(tmp_path):
+    m = tmp_path / "m"
+    with pytest.raises(ValueError):
+        with output_folder(m / "eval", "evaluation"):
+            raise ValueError("bad model")
+    assert [p.name for p in m.iterdir()] == [".eval.lock"]
+    with output_folder(m, "model"):  # m holds only a lock file: empty
         pass
 
 
@@ -195,6 +236,7 @@ def test_killed_overwrite_keeps_the_old_artifact_beside(tmp_path):
     code = f"from lhf_hf.utils.outputs import output_folder\nwith output_folder({str(out)!r}, 'model', resume=True): pass"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert str(kept) in r.stderr and "interrupted --overwrite" in r.stderr
+    assert "complete (its manifest checks)" in r.stderr and f"mv {kept} {out}" in r.stderr
 
 
 def test_atomic_writes_follow_the_umask(tmp_path):
