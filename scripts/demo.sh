@@ -15,6 +15,11 @@ echo "[lhf] environments"
 lhf envs
 echo
 out=runs/darkroom-main-quick
+if [ -f "$out/report.md" ] && [ ! -f "$out/.lhf_output.json" ]; then
+  # this script's own report from a version without output markers: kept aside, not replaced
+  old="$out.unmarked-$(date +%Y%m%d-%H%M%S)"
+  mv "$out" "$old" && echo "[lhf] an earlier report (no output marker) moved to $old"
+fi
 lhf reproduce darkroom-main --preset quick --out "$out" "$@"
 echo
 sed -n '/^## Relative enhancement/,/^## Absolute/p' "$out/report.md" | head -n -1
