@@ -9,6 +9,7 @@ from typing import Literal, get_args
 from .types import check_types
 
 Context = Literal["cache", "recompute", "window"]
+PlanDynamics = Literal["model", "oracle"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 
 
@@ -29,6 +30,9 @@ class EvalConfig:
         field every step (the exactness and speed reference), ``window`` the reference code's
         protocol (only the last K transitions re-encoded from scratch every step).
     overwrite: replace the evaluation ``out`` holds (without it, an existing one is an error).
+    plan_dynamics: what the planner imagines with: ``model`` (the learned reward and next-state
+        heads) or ``oracle`` (the environment's true dynamics, gridworlds without a key: the
+        planner's machinery with perfect dynamics, a diagnostic, not the paper's protocol).
     """
 
     model: str
@@ -41,6 +45,7 @@ class EvalConfig:
     seed: int = 0
     context: Context = "cache"
     overwrite: bool = False
+    plan_dynamics: PlanDynamics = "model"
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -48,6 +53,8 @@ class EvalConfig:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
         if self.context not in CONTEXTS:
             raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
+        if self.plan_dynamics == "oracle" and not self.plan:
+            raise ValueError("EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True")
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in ("test", "train"):

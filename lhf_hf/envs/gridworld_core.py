@@ -278,6 +278,27 @@ class BatchedGridworld:
         self._t += 1
         return self._coords[cell], reward, self._t >= self.horizon
 
+    def imagine(self, coords: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The true dynamics without stepping: from positions ``coords`` (B, N, 2) of copy b's
+        task, actions (B, N) -> (next positions (B, N, 2) int64, rewards (B, N) float32).
+
+        For planning with the environment's own model (a diagnostic of the planner).  Layouts with
+        a key are refused: their reward depends on whether the key is held, which a position does
+        not show.
+        """
+        if self._key is not None:
+            raise ValueError(
+                f"{self.variant.name}: true dynamics from positions alone need a layout without a "
+                "key (the reward depends on the key, which the state does not show)"
+            )
+        coords = np.asarray(coords, dtype=np.int64)
+        a = np.asarray(actions, dtype=np.int64)  # (B, N)
+        if self._perm_flat is not None:
+            a = self._perm_flat[self._row_offset[:, None] + a]  # (B, N) executed base actions
+        cell = coords[..., 0] * self.variant.size + coords[..., 1]  # (B, N)
+        nxt = self._next_cell[cell * NUM_ACTIONS + a]  # (B, N)
+        return self._coords[nxt], (nxt == self._goal[:, None]).astype(np.float32)
+
     def optimal_action(self) -> np.ndarray:
         """(B,) the oracle's action in the current state (DPT labels, DESIGN.md section 2).
 

@@ -87,6 +87,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         plan=cfg.plan,
         context=cfg.context,
         progress=progress,
+        plan_dynamics=cfg.plan_dynamics,
     )
     out = Path(cfg.out)
     results = {

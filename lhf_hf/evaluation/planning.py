@@ -76,11 +76,15 @@ def beam_search(
     logits: torch.Tensor,
     horizon: int,
     beams: int,
+    dynamics=None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
     context: the rollout's context, ending with the current transition token.
     states: (B, S) current states; logits: (B, A) the policy's logits at the current token.
+    dynamics: None (the model's reward and next-state heads) or a function (states (B, N, S),
+        actions (B, N)) -> (next states, rewards) in numpy, e.g. the environment's own
+        (``BatchedTasks.imagine``): the planner's machinery with perfect dynamics, a diagnostic.
     """
     B, A = logits.shape
     tree = _Tree(model, context)
@@ -118,9 +122,15 @@ def beam_search(
         hidden = hidden.view(B, nb, per_beam, -1)
         if beam_T is not None:  # the policy at the imagined state orders this depth's candidates
             policy = model.action_distribution(hidden[:, :, 0])["action_logits"]  # (B, nb, A)
-        dyn = model.dynamics(hidden[:, :, per_beam - A :].reshape(B, nb * A, -1))
-        r_hat = dyn["reward_pred"]  # (B, nb * A)
-        s_hat = model.predicted_next_states(dyn)  # (B, nb * A, S)
+        if dynamics is None:
+            dyn = model.dynamics(hidden[:, :, per_beam - A :].reshape(B, nb * A, -1))
+            r_hat = dyn["reward_pred"]  # (B, nb * A)
+            s_hat = model.predicted_next_states(dyn)  # (B, nb * A, S)
+        else:
+            from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
+            nxt, rew = dynamics(from_states.numpy(), acts.reshape(B, nb * A).numpy())
+            s_hat = torch.as_tensor(nxt).to(beam_state.dtype)  # (B, nb * A, S)
+            r_hat = torch.as_tensor(rew, dtype=torch.float32)  # (B, nb * A)
         score = beam_score.repeat_interleave(A, 1) + r_hat  # (B, nb * A)
         rank_in_beam = torch.argsort(
             torch.argsort(-policy, dim=2, stable=True), dim=2

@@ -64,11 +64,14 @@ def rollout(
     progress: bool = True,
     record_actions: bool = False,
     engine: str = "auto",
+    plan_dynamics: str = "model",
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
     ``context``: how the sliding context is computed (``Context`` modes); ``engine``: the cached
-    step's forward, ``auto`` (the lean exact decoder where the model allows it), ``lean`` or ``hf``."""
+    step's forward, ``auto`` (the lean exact decoder where the model allows it), ``lean`` or ``hf``;
+    ``plan_dynamics``: ``model`` (the learned heads) or ``oracle`` (the environment's own dynamics
+    inside the planner, a diagnostic; gridworlds without a key)."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -76,6 +79,8 @@ def rollout(
         raise ValueError(
             f"planning needs the dynamics heads of a DICP model; this model's objective is {c.objective!r}"
         )
+    if plan_dynamics not in ("model", "oracle"):
+        raise ValueError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     ctx = Context(model, mode=context, engine=engine)
@@ -113,6 +118,7 @@ def rollout(
                     dist["action_logits"][:, 0],
                     min(horizon, H - t),
                     beams,
+                    dynamics=tasks.imagine if plan_dynamics == "oracle" else None,
                 )
                 action = action.numpy()
                 planned += 1

@@ -29,6 +29,10 @@ class BatchedTasks:
         nxt, reward, done = self.core.step(actions)
         return nxt, reward, done, None
 
+    def imagine(self, states: np.ndarray, actions: np.ndarray):
+        """True (next states (B, N, S), rewards (B, N)) of states (B, N, S) and actions (B, N)."""
+        return self.core.imagine(states, actions)
+
 
 class GymTasks:
     """One gymnasium env per task (Meta-World ML1, any registered env without a batched core);
@@ -46,6 +50,11 @@ class GymTasks:
         self.seed = seed
         self.episode = 0
         self.has_success = spec.reports_success
+
+    def imagine(self, states, actions):
+        raise ValueError(
+            "planning with the true dynamics needs an env with a batched core (the gridworlds)"
+        )
 
     def reset(self) -> np.ndarray:
         obs = [

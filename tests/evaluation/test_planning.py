@@ -321,3 +321,29 @@ def test_tree_beam_search_on_the_cache_is_exact_at_depth():
         got_a, got_score = beam_search(model, ctx, state, logits, horizon, beams)
         assert int(got_a[0]) == want_a, (horizon, beams)
         assert abs(float(got_score[0]) - want_score) < 1e-4, (horizon, beams)
+
+
+def test_the_planner_with_true_dynamics_is_near_optimal():
+    """Oracle dynamics (the env's own reward and next state inside the beam search, the policy of
+    an untrained DICP model ordering ties): the planner's machinery alone must walk straight to
+    every goal its beams can see.  With 10 beams and 5 actions the search is exhaustive to depth 2
+    (25 paths), so goals within 2 steps of the start are found from the first planned step; farther
+    ones need a policy that points the beams their way (the reference's beam search, too)."""
+    from lhf_hf.envs import get_spec
+    from lhf_hf.evaluation.rollout import rollout
+    from lhf_hf.evaluation.task_batch import make_task_batch
+
+    model = _dicp_model(1, 4)
+    tasks = [40, 31, 41, 50, 22, 38]  # the start cell (4, 4), its neighbours, 2 steps away
+    batch = make_task_batch("darkroom", tasks, 0, 0)
+    res = rollout(model, batch, 4, seed=0, plan=True, progress=False, plan_dynamics="oracle")
+    optimal = get_spec("darkroom").optimal_returns()[tasks]
+    late = res.returns[:, 1:]  # (tasks, episodes): planning from the second episode on
+    np.testing.assert_allclose(late, np.repeat(optimal[:, None], late.shape[1], 1))
+    # the learned heads of the same (untrained) model are far from it
+    learned = rollout(model, make_task_batch("darkroom", tasks, 0, 0), 4, seed=0, plan=True,
+                      progress=False).returns[:, 1:]  # fmt: skip
+    assert learned.mean() < 0.5 * optimal.mean()
+    with pytest.raises(ValueError, match="without a key"):
+        rollout(model, make_task_batch("dark-key-to-door", [0], 0, 0), 2, plan=True,
+                progress=False, plan_dynamics="oracle")  # fmt: skip
