@@ -10,6 +10,7 @@ from .types import check_types
 
 Context = Literal["cache", "recompute", "window"]
 PlanDynamics = Literal["model", "oracle"]
+PlanOrder = Literal["sample", "argmax"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 
 
@@ -33,6 +34,9 @@ class EvalConfig:
     plan_dynamics: what the planner imagines with: ``model`` (the learned reward and next-state
         heads) or ``oracle`` (the environment's true dynamics, gridworlds without a key: the
         planner's machinery with perfect dynamics, a diagnostic, not the paper's protocol).
+    plan_order: how the beam search ranks depth-0 candidates of equal score: ``sample`` (a
+        permutation drawn from the policy, the reference's: with no predicted reward anywhere the
+        action is a policy sample) or ``argmax`` (the policy's order).
     """
 
     model: str
@@ -46,6 +50,7 @@ class EvalConfig:
     context: Context = "cache"
     overwrite: bool = False
     plan_dynamics: PlanDynamics = "model"
+    plan_order: PlanOrder = "sample"
 
     def __post_init__(self) -> None:
         check_types(self)

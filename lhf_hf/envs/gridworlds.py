@@ -149,6 +149,7 @@ def _register(variant: GridworldVariant) -> None:
             has_optimal_action=True,
             describe_task=partial(_describe, variant),
             state_names=("row", "col"),
+            reward_values=(0.0, 1.0),  # the goal (and the key, the door) give 1, a step else 0
         )
     )
 

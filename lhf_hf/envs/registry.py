@@ -51,6 +51,9 @@ class EnvSpec:
     state_names: names of the state coordinates (dataset features), or None.
     extra_packages: packages of the optional extra whose versions a dataset records.
     reports_success: episodes report ``info["success"]`` (Meta-World): evaluation records success.
+    reward_values: the rewards one step can give when they are few (the gridworlds: 0 and 1), in
+        increasing order: DICP then predicts the reward as one of these classes (cross-entropy; the
+        reference's reward classifier); None: a real-valued reward, regressed (Meta-World).
     """
 
     env_id: str
@@ -75,8 +78,16 @@ class EnvSpec:
     state_names: tuple[str, ...] | None = None
     extra_packages: tuple[str, ...] = ()
     reports_success: bool = False
+    reward_values: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
+        if self.reward_values is not None and (
+            len(self.reward_values) < 2
+            or any(b <= a for a, b in zip(self.reward_values, self.reward_values[1:], strict=False))
+        ):
+            raise ValueError(
+                f"EnvSpec.reward_values must be >= 2 increasing values, got {self.reward_values!r}"
+            )
         if not self.env_id or self.env_id != self.env_id.strip().lower():
             raise ValueError(
                 f"EnvSpec.env_id must be a non-empty lower-case id, got {self.env_id!r}"

@@ -88,6 +88,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         context=cfg.context,
         progress=progress,
         plan_dynamics=cfg.plan_dynamics,
+        plan_order=cfg.plan_order,
     )
     out = Path(cfg.out)
     results = {

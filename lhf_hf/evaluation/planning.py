@@ -77,6 +77,8 @@ def beam_search(
     horizon: int,
     beams: int,
     dynamics=None,
+    order: str = "argmax",
+    generator: torch.Generator | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
@@ -85,7 +87,13 @@ def beam_search(
     dynamics: None (the model's reward and next-state heads) or a function (states (B, N, S),
         actions (B, N)) -> (next states, rewards) in numpy, e.g. the environment's own
         (``BatchedTasks.imagine``): the planner's machinery with perfect dynamics, a diagnostic.
+    order: how candidates of equal score are ranked at depth 0: ``sample`` (a permutation drawn
+        from the policy with ``generator``, Gumbel-top-k: the reference's, so that when no path
+        predicts a reward the action is a policy sample) or ``argmax`` (the policy's order);
+        deeper depths rank ties by the policy's order at the imagined state.
     """
+    if order not in ("sample", "argmax"):
+        raise ValueError(f"order must be 'sample' or 'argmax', got {order!r}")
     B, A = logits.shape
     tree = _Tree(model, context)
     b_idx = torch.arange(B)[:, None]
@@ -132,9 +140,11 @@ def beam_search(
             s_hat = torch.as_tensor(nxt).to(beam_state.dtype)  # (B, nb * A, S)
             r_hat = torch.as_tensor(rew, dtype=torch.float32)  # (B, nb * A)
         score = beam_score.repeat_interleave(A, 1) + r_hat  # (B, nb * A)
-        rank_in_beam = torch.argsort(
-            torch.argsort(-policy, dim=2, stable=True), dim=2
-        )  # (B, nb, A)
+        keys = policy
+        if depth == 0 and order == "sample":  # Gumbel-max: argsort of logits + Gumbel noise is a
+            u = torch.rand(policy.shape, generator=generator).clamp_(1e-20, 1.0)  # permutation
+            keys = policy - torch.log(-torch.log(u))  # drawn from the policy without replacement
+        rank_in_beam = torch.argsort(torch.argsort(-keys, dim=2, stable=True), dim=2)  # (B, nb, A)
         policy_rank = (rank_in_beam * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
         first = (
             acts.reshape(B, nb * A) if beam_first is None else beam_first.repeat_interleave(A, 1)

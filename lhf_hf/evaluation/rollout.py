@@ -65,13 +65,16 @@ def rollout(
     record_actions: bool = False,
     engine: str = "auto",
     plan_dynamics: str = "model",
+    plan_order: str = "sample",
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
     ``context``: how the sliding context is computed (``Context`` modes); ``engine``: the cached
     step's forward, ``auto`` (the lean exact decoder where the model allows it), ``lean`` or ``hf``;
     ``plan_dynamics``: ``model`` (the learned heads) or ``oracle`` (the environment's own dynamics
-    inside the planner, a diagnostic; gridworlds without a key)."""
+    inside the planner, a diagnostic; gridworlds without a key); ``plan_order``: the beam search's
+    depth-0 tie order, ``sample`` (drawn from the policy on this rollout's seeded stream, the
+    reference's) or ``argmax``."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -83,6 +86,7 @@ def rollout(
         raise ValueError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
+    plan_gen = torch.Generator().manual_seed(seed)  # the planner's depth-0 orders
     ctx = Context(model, mode=context, engine=engine)
     tokens = StepTokens(model)
     # read once: a transformers config attribute costs ~2 us per access
@@ -119,6 +123,8 @@ def rollout(
                     min(horizon, H - t),
                     beams,
                     dynamics=tasks.imagine if plan_dynamics == "oracle" else None,
+                    order=plan_order,
+                    generator=plan_gen,
                 )
                 action = action.numpy()
                 planned += 1

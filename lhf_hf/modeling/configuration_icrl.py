@@ -39,6 +39,10 @@ class ICRLConfig(LlamaConfig):
         error is on the scale of the reward's.
     embedding_dropout: dropout on the token embeddings; with ``attention_dropout`` this is the
         paper's "attention dropout & dropout" (LlamaModel has no residual dropout of its own).
+    reward_values: the rewards a step can give, when they are few (increasing; the env's
+        ``EnvSpec.reward_values``): DICP's reward head is then a classifier over them (cross-entropy,
+        as the reference's), and the predicted reward is the most likely class's value; None: a
+        regression head (squared error), for real-valued rewards.
     plan_beams / plan_horizon / plan_samples: DICP planning (beams and depth of the discrete beam
         search; candidates of the continuous greedy search: the policy mean plus samples).
     """
@@ -59,6 +63,7 @@ class ICRLConfig(LlamaConfig):
     plan_beams: int = 10
     plan_horizon: int = 8
     plan_samples: int = 10
+    reward_values: list[float] | None = None
 
     # LlamaConfig defaults that make no sense without a vocabulary.
     vocab_size: int = 1
@@ -83,6 +88,11 @@ class ICRLConfig(LlamaConfig):
             context_length=self.context_length,
             dynamics_coef=self.dynamics_coef,
         )
+        rv = self.reward_values
+        if rv is not None and (
+            len(rv) < 2 or any(b <= a for a, b in zip(rv, rv[1:], strict=False))
+        ):
+            raise bad("reward_values", "must be None or >= 2 increasing values")
         for name in ("state_dim", "action_dim", "plan_beams", "plan_horizon"):
             if getattr(self, name) < 1:
                 raise bad(name, "must be >= 1")

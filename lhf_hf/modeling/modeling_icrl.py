@@ -53,7 +53,9 @@ class ICRLOutput(ModelOutput):
     action_loss / dynamics_loss: the two parts (dynamics: DICP only).
     action_logits: (B, T, A) categorical logits (discrete actions).
     action_mean / action_log_std: (B, T, A) Gaussian policy (continuous actions).
-    reward_pred: (B, T) predicted reward of (s_j, a_j) (DICP).
+    reward_pred: (B, T) predicted reward of (s_j, a_j) (DICP; with reward classes: the most likely
+        class's value).
+    reward_logits: (B, T, C) logits over ``config.reward_values`` (DICP with reward classes).
     next_state_logits: (B, T, S, bins) per-coordinate logits of s'_j (DICP, integer states).
     next_state_pred: (B, T, S) predicted s'_j (DICP, real-valued states).
     return_pred: (B, T) predicted return-to-go from (s_j, a_j), in units of ``return_scale`` (DICP).
@@ -67,6 +69,7 @@ class ICRLOutput(ModelOutput):
     action_mean: torch.FloatTensor | None = None
     action_log_std: torch.FloatTensor | None = None
     reward_pred: torch.FloatTensor | None = None
+    reward_logits: torch.FloatTensor | None = None
     next_state_logits: torch.FloatTensor | None = None
     next_state_pred: torch.FloatTensor | None = None
     return_pred: torch.FloatTensor | None = None
@@ -98,7 +101,8 @@ class ICRLModel(ICRLPreTrainedModel):
         self.action_head = nn.Linear(D, A if config.discrete_actions else 2 * A)
         if config.objective == "dicp":
             self.embed_query_action = nn.Linear(s_in + a_in, D)
-            self.reward_head = nn.Linear(D, 1)
+            rv = config.reward_values
+            self.reward_head = nn.Linear(D, len(rv) if rv else 1)  # classes, or a regression
             self.return_head = nn.Linear(D, 1)
             S, bins = config.state_dim, config.state_bins
             self.next_state_head = nn.Linear(D, S * bins if bins else S)
@@ -190,10 +194,16 @@ class ICRLModel(ICRLPreTrainedModel):
     def dynamics(self, hidden: torch.Tensor) -> dict[str, torch.Tensor]:
         """DICP heads on query-action outputs (B, T, D)."""
         c = self.config
-        out = {
-            "reward_pred": self.reward_head(hidden).squeeze(-1),  # (B, T)
-            "return_pred": self.return_head(hidden).squeeze(-1),  # (B, T)
-        }
+        r = self.reward_head(hidden)  # (B, T, C) class logits, or (B, T, 1)
+        out = {"return_pred": self.return_head(hidden).squeeze(-1)}  # (B, T)
+        if c.reward_values:
+            out["reward_logits"] = r
+            # the imagined reward is the most likely class's value (the reference scores the
+            # argmax class and feeds it back into the imagined transition)
+            values = torch.tensor(c.reward_values, dtype=r.dtype, device=r.device)  # (C,)
+            out["reward_pred"] = values[r.argmax(-1)]  # (B, T)
+        else:
+            out["reward_pred"] = r.squeeze(-1)  # (B, T)
         ns = self.next_state_head(hidden)
         if c.state_bins:
             out["next_state_logits"] = ns.unflatten(
@@ -202,6 +212,20 @@ class ICRLModel(ICRLPreTrainedModel):
         else:
             out["next_state_pred"] = ns  # (B, T, S)
         return out
+
+    def reward_class_of(self, rewards: torch.Tensor) -> torch.Tensor:
+        """Class index of each reward (..., ) among ``config.reward_values``; a reward that is none
+        of them raises (the data do not match the model's reward classes)."""
+        # from the config, not a buffer: from_pretrained leaves non-persistent buffers uninitialised
+        values = torch.tensor(self.config.reward_values, dtype=torch.float64, device=rewards.device)
+        idx = (rewards.to(torch.float64)[..., None] - values).abs().argmin(-1)  # (...,)
+        off = (rewards.to(torch.float64) - values[idx]).abs() > 1e-6
+        if off.any():
+            raise ValueError(
+                f"reward {float(rewards[off][0])} is not one of the model's reward values "
+                f"{self.config.reward_values}"
+            )
+        return idx
 
     @staticmethod
     def predicted_next_states(out: dict) -> torch.Tensor:
@@ -306,7 +330,12 @@ class ICRLModel(ICRLPreTrainedModel):
         exact grid states.
         """
         c = self.config
-        reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self._dtype))
+        if c.reward_values:
+            reward_loss = F.cross_entropy(
+                out["reward_logits"][mask].float(), self.reward_class_of(rewards[mask])
+            )
+        else:
+            reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self._dtype))
         return_loss = F.mse_loss(
             out["return_pred"][mask], returns[mask].to(self._dtype) / c.return_scale
         )

@@ -161,6 +161,7 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
         dynamics_coef=cfg.dynamics_coef,
         return_scale=float(spec.horizon),
         plan_horizon=spec.plan_horizon,
+        reward_values=list(spec.reward_values) if spec.reward_values else None,
     )
 
 

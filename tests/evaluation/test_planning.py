@@ -347,3 +347,42 @@ def test_the_planner_with_true_dynamics_is_near_optimal():
     with pytest.raises(ValueError, match="without a key"):
         rollout(model, make_task_batch("dark-key-to-door", [0], 0, 0), 2, plan=True,
                 progress=False, plan_dynamics="oracle")  # fmt: skip
+
+
+def test_tied_rewards_make_the_planned_action_a_policy_sample():
+    """Reward classes predicting 0 everywhere (all paths tie): with the sampled depth-0 order (the
+    reference's) the first action is a draw from the policy, by frequency; with ``argmax`` it is
+    always the policy's mode."""
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.envs import get_spec
+    from lhf_hf.modeling import ICRLModel
+    from lhf_hf.training import model_config_for
+
+    cfg = model_config_for(get_spec("darkroom"), TrainConfig(dataset="-", objective="dicp",
+                           out="-", preset="tiny", context_length=4), True)  # fmt: skip
+    assert cfg.reward_values == [0.0, 1.0]  # the gridworlds' reward classes
+    torch.manual_seed(0)
+    model = ICRLModel(cfg).eval()
+    with torch.no_grad():  # class 0 (reward 0) always wins: every path scores 0
+        model.reward_head.weight.zero_()
+        model.reward_head.bias.copy_(torch.tensor([1.0, -1.0]))
+    ctx = Context(model, mode="cache")
+    g = torch.Generator().manual_seed(0)
+    for _ in range(4):
+        ctx.append(torch.randn(1, 2, cfg.hidden_size, generator=g))
+    logits = torch.tensor([[0.0, 1.0, 2.0, 0.5, -1.0]])
+    state = torch.tensor([[4, 4]])
+    gen = torch.Generator().manual_seed(3)
+    n = 3000
+    counts = np.bincount(
+        [
+            int(beam_search(model, ctx, state, logits, 2, 10, order="sample", generator=gen)[0][0])
+            for _ in range(n)
+        ],  # fmt: skip
+        minlength=5,
+    )
+    p = torch.softmax(logits[0], 0).numpy()
+    assert np.all(np.abs(counts / n - p) < 4 * np.sqrt(p * (1 - p) / n) + 1e-3), (counts / n, p)
+    assert all(int(beam_search(model, ctx, state, logits, 2, 10)[0][0]) == 2 for _ in range(5))
+    with pytest.raises(ValueError, match="order must be"):
+        beam_search(model, ctx, state, logits, 1, 10, order="random")

@@ -300,3 +300,38 @@ def test_train_config_and_model_config_share_the_model_rules(fields, field):
     with pytest.raises(ValueError, match=f"TrainConfig.{field} ") as train_err:
         TrainConfig(dataset="d", out="o", **fields)
     assert str(model_err.value).split(" ", 1)[1] == str(train_err.value).split(" ", 1)[1]
+
+
+def test_categorical_reward_head_loss_prediction_and_round_trip(tmp_path):
+    """With reward classes the head classifies (cross-entropy, by hand), predicts the most likely
+    class's value, refuses rewards that are none of the classes, and survives save/load."""
+    import torch.nn.functional as F
+
+    config = icrl_config("tiny", objective="dicp", state_dim=2, state_bins=9, action_dim=5,
+                         context_length=6, reward_values=[0.0, 1.0])  # fmt: skip
+    torch.manual_seed(0)
+    model = ICRLModel(config).eval()
+    B, T = 2, 6
+    g = torch.Generator().manual_seed(1)
+    states = torch.randint(0, 9, (B, T, 2), generator=g)
+    actions = torch.randint(0, 5, (B, T), generator=g)
+    rewards = (torch.rand(B, T, generator=g) < 0.3).float()
+    batch = dict(states=states, prev_states=states, prev_actions=actions, prev_rewards=rewards,
+                 prev_dones=torch.zeros(B, T, dtype=torch.bool), has_prev=torch.ones(B, T, dtype=torch.bool),
+                 actions=actions, action_labels=actions, reward_labels=rewards,
+                 next_state_labels=states, return_labels=rewards)  # fmt: skip
+    out = model(**batch)
+    assert out.reward_logits.shape == (B, T, 2)
+    assert torch.equal(out.reward_pred, out.reward_logits.argmax(-1).float())
+    ce = F.cross_entropy(out.reward_logits.flatten(0, 1), rewards.long().flatten())
+    state_ce = F.cross_entropy(out.next_state_logits.flatten(0, 2), states.flatten())
+    ret = F.mse_loss(out.return_pred, rewards / config.return_scale)
+    torch.testing.assert_close(out.dynamics_loss, ce + state_ce + ret)
+    with pytest.raises(ValueError, match="reward 0.5 is not one of the model's reward values"):
+        model(**{**batch, "reward_labels": rewards + 0.5})
+    model.save_pretrained(tmp_path)
+    again = AutoModel.from_pretrained(tmp_path).eval()
+    assert again.config.reward_values == [0.0, 1.0]
+    torch.testing.assert_close(again(**batch).reward_logits, out.reward_logits)
+    with pytest.raises(ValueError, match="reward_values"):
+        icrl_config("tiny", objective="dicp", reward_values=[1.0, 0.0])
