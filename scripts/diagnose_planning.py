@@ -112,6 +112,66 @@ def head_accuracy(model, batch, episodes: int, seed: int) -> dict:
     }
 
 
+@torch.no_grad()
+def depth_accuracy(model, batch, episodes: int, seed: int) -> dict:
+    """At every full-context step of a model-free rollout, one beam search as the planner runs it;
+    every candidate it imagines, at every depth, against the true reward and next state of the
+    same (imagined) state and action: where along the imagined paths do the heads go wrong?"""
+    from lhf_hf.evaluation.planning import beam_search
+
+    c = model.config
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    ctx, tokens = Context(model, mode="cache"), StepTokens(model)
+    prev, steps = None, 0
+    per_depth: dict[int, list] = {}
+    for _ in range(episodes):
+        state = batch.reset()
+        for t in range(batch.horizon):
+            tok = tokens.transition(state, prev)
+            is_query = None
+            if prev is not None:
+                tok = torch.cat([tokens.query(prev[0], prev[1]), tok], dim=1)
+                is_query = [True, False]
+            hidden = ctx.append(tok, is_query)[:, -1:]
+            dist = model.action_distribution(hidden)
+            if steps + 1 >= c.context_length:
+                trace: list = []
+                beam_search(model, ctx, torch.as_tensor(state, dtype=torch.float32),
+                            dist["action_logits"][:, 0], min(c.plan_horizon, batch.horizon - t),
+                            c.plan_beams, order="sample", generator=gen, trace=trace)  # fmt: skip
+                for d in trace:
+                    nxt, rew = batch.imagine(np.rint(d["states"]), d["actions"])
+                    goal = rew >= 0.5
+                    per_depth.setdefault(d["depth"], []).append(
+                        np.stack(
+                            [
+                                goal.ravel(),
+                                ((d["reward"] >= 0.5) == goal).ravel(),
+                                (np.rint(d["next_state"]) == nxt).all(-1).ravel(),
+                            ],
+                            1,
+                        )  # fmt: skip
+                    )
+            action = sample_actions(dist, rng)
+            nxt_state, reward, done, _ = batch.step(action)
+            prev = (state, action, reward, done)
+            state = nxt_state
+            steps += 1
+    out = {}
+    for depth, parts in sorted(per_depth.items()):
+        a = np.concatenate(parts).astype(np.float64)  # (n, 3): goal, reward right, state right
+        g, o = a[a[:, 0] > 0], a[a[:, 0] == 0]
+        out[depth] = {
+            "candidates": len(a),
+            "reward_acc_goal": None if len(g) == 0 else round(float(g[:, 1].mean()), 4),
+            "reward_false_positive": None if len(o) == 0 else round(1 - float(o[:, 1].mean()), 4),
+            "next_state_acc": round(float(a[:, 2].mean()), 4),
+        }
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -153,6 +213,13 @@ def main() -> None:
         for seed in args.seeds
     }
     print(json.dumps(out["heads"], indent=1))
+    out["by_depth"] = {
+        seed: depth_accuracy(
+            model, make_task_batch(env, tasks, args.split_seed, seed), args.episodes, seed
+        )  # fmt: skip
+        for seed in args.seeds
+    }
+    print(json.dumps(out["by_depth"], indent=1))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=1))

@@ -79,6 +79,7 @@ def beam_search(
     dynamics=None,
     order: str = "argmax",
     generator: torch.Generator | None = None,
+    trace: list | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
@@ -91,6 +92,9 @@ def beam_search(
         from the policy with ``generator``, Gumbel-top-k: the reference's, so that when no path
         predicts a reward the action is a policy sample) or ``argmax`` (the policy's order);
         deeper depths rank ties by the policy's order at the imagined state.
+    trace: a list that receives, per depth, what the planner imagined: ``{depth, states (B, N, S),
+        actions (B, N), reward (B, N), next_state (B, N, S)}`` for its N candidates (numpy), so a
+        diagnosis can hold them against the true dynamics.
     """
     if order not in ("sample", "argmax"):
         raise ValueError(f"order must be 'sample' or 'argmax', got {order!r}")
@@ -139,6 +143,17 @@ def beam_search(
             nxt, rew = dynamics(from_states.numpy(), acts.reshape(B, nb * A).numpy())
             s_hat = torch.as_tensor(nxt).to(beam_state.dtype)  # (B, nb * A, S)
             r_hat = torch.as_tensor(rew, dtype=torch.float32)  # (B, nb * A)
+        if trace is not None:
+            from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
+            trace.append(
+                {
+                    "depth": depth,
+                    "states": from_states.numpy(),
+                    "actions": acts.reshape(B, nb * A).numpy(),
+                    "reward": r_hat.numpy(),
+                    "next_state": s_hat.numpy(),
+                }
+            )
         score = beam_score.repeat_interleave(A, 1) + r_hat  # (B, nb * A)
         keys = policy
         if depth == 0 and order == "sample":  # Gumbel-max: argsort of logits + Gumbel noise is a

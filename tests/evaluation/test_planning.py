@@ -386,3 +386,10 @@ def test_tied_rewards_make_the_planned_action_a_policy_sample():
     assert all(int(beam_search(model, ctx, state, logits, 2, 10)[0][0]) == 2 for _ in range(5))
     with pytest.raises(ValueError, match="order must be"):
         beam_search(model, ctx, state, logits, 1, 10, order="random")
+    # the trace holds every candidate the planner imagined, depth by depth
+    trace: list = []
+    beam_search(model, ctx, state, logits, 3, 10, trace=trace)
+    assert [d["depth"] for d in trace] == [0, 1, 2]
+    assert [d["actions"].shape for d in trace] == [(1, 5), (1, 25), (1, 50)]
+    assert trace[0]["states"].shape == (1, 5, 2) and (trace[0]["states"] == [4, 4]).all()
+    assert all((d["reward"] == 0).all() for d in trace)  # class 0 everywhere
