@@ -25,65 +25,61 @@ import torch
 from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.context import Context
 from lhf_hf.evaluation.evaluate import resolve_tasks
-from lhf_hf.evaluation.planning import _Tree
+from lhf_hf.evaluation.planning import beam_search
 from lhf_hf.evaluation.rollout import rollout, sample_actions
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.evaluation.tokens import StepTokens
 from lhf_hf.modeling import load_model
 
 
-@torch.no_grad()
-def depth0_predictions(model, ctx: Context, states: torch.Tensor):
-    """(r_hat (B, A), s_hat (B, A, S)) of every action from ``states`` (B, S), built as the beam
-    search builds its first depth (query-action tokens on the shared context, tree mask)."""
-    B, A = states.shape[0], model.config.action_dim
-    tree = _Tree(model, ctx)
-    acts = torch.arange(A).expand(B, A)
-    q = model.embed_query_actions(states[:, None].expand(B, A, -1), acts)  # (B, A, D)
-    hidden = tree.forward(
-        q,
-        torch.zeros(A, dtype=torch.long),
-        torch.ones(A, dtype=torch.bool),
-        torch.zeros(B, A, 0, dtype=torch.bool),
-        torch.eye(A, dtype=torch.bool),
-    )
-    dyn = model.dynamics(hidden)
-    return dyn["reward_pred"], model.predicted_next_states(dyn)
-
-
-@torch.no_grad()
-def head_accuracy(model, batch, episodes: int, seed: int) -> dict:
-    """Model-free rollout; at every full-context step, the depth-0 predictions vs the truth."""
+def _full_context_steps(model, batch, episodes: int, seed: int):
+    """A model-free rollout (the policy's own samples, the rollout's token stream); yields
+    ``(episode, t, context, states (B, S), policy logits (B, A))`` at every step whose context
+    holds K transitions, i.e. where the planner would plan."""
     c = model.config
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     ctx, tokens = Context(model, mode="cache"), StepTokens(model)
     prev, steps = None, 0
-    rows = []  # (episode, true reward, reward right, next state right)
     for ep in range(episodes):
         state = batch.reset()
-        for _ in range(batch.horizon):
-            s = torch.as_tensor(state, dtype=torch.float32)
+        for t in range(batch.horizon):
             tok = tokens.transition(state, prev)
             is_query = None
             if prev is not None:
                 tok = torch.cat([tokens.query(prev[0], prev[1]), tok], dim=1)
                 is_query = [True, False]
             hidden = ctx.append(tok, is_query)[:, -1:]
+            dist = model.action_distribution(hidden)
             if steps + 1 >= c.context_length:
-                r_hat, s_hat = depth0_predictions(model, ctx, s)
-                A = r_hat.shape[1]
-                acts = np.tile(np.arange(A), (len(state), 1))
-                nxt, rew = batch.imagine(np.repeat(state[:, None], A, 1), acts)
-                right_r = (r_hat.numpy() >= 0.5) == (rew >= 0.5)
-                right_s = (np.rint(s_hat.numpy()) == nxt).all(-1)
-                for r, a, b in zip(rew.ravel(), right_r.ravel(), right_s.ravel(), strict=True):
-                    rows.append((ep, float(r), bool(a), bool(b)))
-            action = sample_actions(model.action_distribution(hidden), rng)
+                yield ep, t, ctx, state, dist["action_logits"][:, 0]
+            action = sample_actions(dist, rng)
             nxt_state, reward, done, _ = batch.step(action)
             prev = (state, action, reward, done)
             state = nxt_state
             steps += 1
+
+
+def _imagined(model, ctx, state, logits, horizon: int, gen) -> list[dict]:
+    """Every candidate one beam search imagines, depth by depth (``beam_search``'s trace)."""
+    trace: list = []
+    beam_search(model, ctx, torch.as_tensor(state, dtype=torch.float32), logits, horizon,
+                model.config.plan_beams, order="sample", generator=gen, trace=trace)  # fmt: skip
+    return trace
+
+
+@torch.no_grad()
+def head_accuracy(model, batch, episodes: int, seed: int) -> dict:
+    """Model-free rollout; at every full-context step, the depth-0 predictions vs the truth."""
+    gen = torch.Generator().manual_seed(seed)
+    rows = []  # (episode, true reward, reward right, next state right)
+    for ep, _, ctx, state, logits in _full_context_steps(model, batch, episodes, seed):
+        (d0,) = _imagined(model, ctx, state, logits, 1, gen)  # every action from the state
+        nxt, rew = batch.imagine(np.rint(d0["states"]), d0["actions"])
+        right_r = (d0["reward"] >= 0.5) == (rew >= 0.5)
+        right_s = (np.rint(d0["next_state"]) == nxt).all(-1)
+        for r, a, b in zip(rew.ravel(), right_r.ravel(), right_s.ravel(), strict=True):
+            rows.append((ep, float(r), bool(a), bool(b)))
     arr = np.array(rows, dtype=np.float64)  # (n, 4)
     goal, other = arr[arr[:, 1] >= 0.5], arr[arr[:, 1] < 0.5]
 
@@ -117,48 +113,23 @@ def depth_accuracy(model, batch, episodes: int, seed: int) -> dict:
     """At every full-context step of a model-free rollout, one beam search as the planner runs it;
     every candidate it imagines, at every depth, against the true reward and next state of the
     same (imagined) state and action: where along the imagined paths do the heads go wrong?"""
-    from lhf_hf.evaluation.planning import beam_search
-
-    c = model.config
-    rng = np.random.default_rng(seed)
-    torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
-    ctx, tokens = Context(model, mode="cache"), StepTokens(model)
-    prev, steps = None, 0
     per_depth: dict[int, list] = {}
-    for _ in range(episodes):
-        state = batch.reset()
-        for t in range(batch.horizon):
-            tok = tokens.transition(state, prev)
-            is_query = None
-            if prev is not None:
-                tok = torch.cat([tokens.query(prev[0], prev[1]), tok], dim=1)
-                is_query = [True, False]
-            hidden = ctx.append(tok, is_query)[:, -1:]
-            dist = model.action_distribution(hidden)
-            if steps + 1 >= c.context_length:
-                trace: list = []
-                beam_search(model, ctx, torch.as_tensor(state, dtype=torch.float32),
-                            dist["action_logits"][:, 0], min(c.plan_horizon, batch.horizon - t),
-                            c.plan_beams, order="sample", generator=gen, trace=trace)  # fmt: skip
-                for d in trace:
-                    nxt, rew = batch.imagine(np.rint(d["states"]), d["actions"])
-                    goal = rew >= 0.5
-                    per_depth.setdefault(d["depth"], []).append(
-                        np.stack(
-                            [
-                                goal.ravel(),
-                                ((d["reward"] >= 0.5) == goal).ravel(),
-                                (np.rint(d["next_state"]) == nxt).all(-1).ravel(),
-                            ],
-                            1,
-                        )  # fmt: skip
-                    )
-            action = sample_actions(dist, rng)
-            nxt_state, reward, done, _ = batch.step(action)
-            prev = (state, action, reward, done)
-            state = nxt_state
-            steps += 1
+    for _, t, ctx, state, logits in _full_context_steps(model, batch, episodes, seed):
+        horizon = min(model.config.plan_horizon, batch.horizon - t)
+        for d in _imagined(model, ctx, state, logits, horizon, gen):
+            nxt, rew = batch.imagine(np.rint(d["states"]), d["actions"])
+            goal = rew >= 0.5
+            per_depth.setdefault(d["depth"], []).append(
+                np.stack(
+                    [
+                        goal.ravel(),
+                        ((d["reward"] >= 0.5) == goal).ravel(),
+                        (np.rint(d["next_state"]) == nxt).all(-1).ravel(),
+                    ],
+                    1,
+                )  # fmt: skip
+            )
     out = {}
     for depth, parts in sorted(per_depth.items()):
         a = np.concatenate(parts).astype(np.float64)  # (n, 3): goal, reward right, state right

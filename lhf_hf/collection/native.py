@@ -31,6 +31,8 @@ from pathlib import Path
 
 import torch
 
+from lhf_hf.utils.io import sha256_file
+
 logger = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
@@ -105,19 +107,11 @@ def _native_target(cxx: str) -> str:
     return proc.stdout
 
 
-def _digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _verified(lib: Path) -> bool:
     """The library exists and its bytes are the ones recorded when it was built."""
     record = lib.with_name(lib.name + ".sha256")
     try:
-        return record.read_text().strip() == _digest(lib)
+        return record.read_text().strip() == sha256_file(lib)
     except OSError:
         return False
 
@@ -157,7 +151,7 @@ def build(hidden: int = 64) -> Path:
         proc = subprocess.run([cxx, *flags, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
         if proc.returncode != 0:
             raise KernelUnavailable(f"building {SOURCE.name} failed:\n{proc.stderr[-2000:]}")
-        digest = _digest(Path(tmp))
+        digest = sha256_file(Path(tmp))
         os.replace(tmp, out)  # atomic: a concurrent build of the same key writes the same bytes
         record = out.with_name(out.name + ".sha256")
         fd, tmp_record = tempfile.mkstemp(dir=out.parent, suffix=".sha256.tmp")

@@ -94,8 +94,9 @@ def _tables(ds) -> list[str]:
     return problems
 
 
-def _returns_of_task(ds, task: int) -> list[str]:
-    """The recorded returns of ``task`` against the sums of its frames' rewards."""
+def _returns_of_task(ds, hist: pa.Table, task: int) -> list[str]:
+    """The recorded returns of ``task`` (in the histories table ``hist``) against the sums of its
+    frames' rewards."""
     frames = ds.task_frames(task, columns=[C.REWARD, C.HISTORY_INDEX, C.TASK_INDEX])
     if (frames.column(C.TASK_INDEX).to_numpy() != task).any():
         return [f"task {task}: its data file holds frames of another task_index"]
@@ -106,7 +107,6 @@ def _returns_of_task(ds, task: int) -> list[str]:
     if len(rewards) != H * E * ds.horizon:
         return [f"task {task}: {len(rewards)} frames, expected {H * E * ds.horizon}"]
     recomputed = rewards.reshape(H, E, ds.horizon).sum(-1)  # (H, E), history order of the file
-    hist = pq.read_table(ds.root / C.HISTORIES_PATH)
     mine = hist.filter(pa.compute.equal(hist.column(C.TASK_INDEX), task))
     order = np.argsort(mine.column(C.HISTORY_INDEX).to_numpy())
     recorded = np.array(mine.column(C.RETURNS).to_pylist(), dtype=np.float64)[order]  # (H, E)
@@ -132,8 +132,9 @@ def check_dataset(ds, full: bool = False) -> list[str]:
     if problems:
         return problems
     tasks = [int(t) for t in ds.lhf["tasks"]]
+    hist = pq.read_table(ds.root / C.HISTORIES_PATH)  # read once, not once per task
     for task in tasks if full else tasks[:1]:
-        problems += _returns_of_task(ds, task)
+        problems += _returns_of_task(ds, hist, task)
     if full:
         digests = "".join(sha256_file(f) for f in ds.data_files())
         if hashlib.sha256(digests.encode()).hexdigest() != ds.fingerprint:

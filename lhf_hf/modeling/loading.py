@@ -27,7 +27,7 @@ def load_model(path: str) -> ICRLModel:
             raise ValueError(
                 f"{path} holds pickled weights (pytorch_model.bin) only: lhf loads safetensors "
                 "alone (unpickling can run code); save the model with save_pretrained(...) "
-                "from a trusted session to get model.safetensors"
+                "in a Python process you trust to get model.safetensors"
             )
         raise FileNotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
     return AutoModel.from_pretrained(p, use_safetensors=True).eval()
