@@ -3,13 +3,18 @@ the environment's true dynamics inside the same planner, and the accuracy of the
 next-state heads at depth 0, on the tokens exactly as the planner builds them.
 
     python scripts/diagnose_planning.py --model runs/dicp-cpu [--episodes 40] [--seeds 0 1]
-        [--json results/planning/diagnose.json]
+        [--json results/planning/diagnose.json] [--parts runs heads depth false-positives]
 
 Darkroom-family gridworlds without a key (the true dynamics need the goal alone).  The unseen goals
 of the model's split; each seed is a separate rollout.  Head accuracy is measured during the
 model-free rollout, at every step with a full context: for each of the 5 actions from the current
 state, the reward head's prediction (thresholded at 0.5) and the next-state head's prediction
 against the true ones, split by whether the true reward is 1 (the goal cell) or 0, and by episode.
+``depth``: the same for every candidate of one beam search, by depth.  ``false-positives``: the
+rate of predicted rewards the true dynamics do not give, with and without a rewarded step in the
+window, and which moves they are (distance of the move's start and end cells to the goal).
+``data``: how often the source agents leave the goal in the model's training data.  With
+``--json`` the parts measured are added to (or replace those in) an earlier diagnosis of the model.
 """
 
 from __future__ import annotations
@@ -35,12 +40,13 @@ from lhf_hf.modeling import load_model
 def _full_context_steps(model, batch, episodes: int, seed: int):
     """A model-free rollout (the policy's own samples, the rollout's token stream); yields
     ``(episode, t, context, states (B, S), policy logits (B, A))`` at every step whose context
-    holds K transitions, i.e. where the planner would plan."""
+    holds K transitions, i.e. where the planner would plan, and the rewards (B,) of every real step
+    before it."""
     c = model.config
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     ctx, tokens = Context(model, mode="cache"), StepTokens(model)
-    prev, steps = None, 0
+    prev, steps, rewards = None, 0, []
     for ep in range(episodes):
         state = batch.reset()
         for t in range(batch.horizon):
@@ -52,10 +58,11 @@ def _full_context_steps(model, batch, episodes: int, seed: int):
             hidden = ctx.append(tok, is_query)[:, -1:]
             dist = model.action_distribution(hidden)
             if steps + 1 >= c.context_length:
-                yield ep, t, ctx, state, dist["action_logits"][:, 0]
+                yield ep, t, ctx, state, dist["action_logits"][:, 0], rewards
             action = sample_actions(dist, rng)
             nxt_state, reward, done, _ = batch.step(action)
             prev = (state, action, reward, done)
+            rewards.append(np.asarray(reward))
             state = nxt_state
             steps += 1
 
@@ -73,7 +80,7 @@ def head_accuracy(model, batch, episodes: int, seed: int) -> dict:
     """Model-free rollout; at every full-context step, the depth-0 predictions vs the truth."""
     gen = torch.Generator().manual_seed(seed)
     rows = []  # (episode, true reward, reward right, next state right)
-    for ep, _, ctx, state, logits in _full_context_steps(model, batch, episodes, seed):
+    for ep, _, ctx, state, logits, _ in _full_context_steps(model, batch, episodes, seed):
         (d0,) = _imagined(model, ctx, state, logits, 1, gen)  # every action from the state
         nxt, rew = batch.imagine(np.rint(d0["states"]), d0["actions"])
         right_r = (d0["reward"] >= 0.5) == (rew >= 0.5)
@@ -115,7 +122,7 @@ def depth_accuracy(model, batch, episodes: int, seed: int) -> dict:
     same (imagined) state and action: where along the imagined paths do the heads go wrong?"""
     gen = torch.Generator().manual_seed(seed)
     per_depth: dict[int, list] = {}
-    for _, t, ctx, state, logits in _full_context_steps(model, batch, episodes, seed):
+    for _, t, ctx, state, logits, _ in _full_context_steps(model, batch, episodes, seed):
         horizon = min(model.config.plan_horizon, batch.horizon - t)
         for d in _imagined(model, ctx, state, logits, horizon, gen):
             nxt, rew = batch.imagine(np.rint(d["states"]), d["actions"])
@@ -143,6 +150,67 @@ def depth_accuracy(model, batch, episodes: int, seed: int) -> dict:
     return out
 
 
+@torch.no_grad()
+def false_positives(model, batch, episodes: int, seed: int) -> dict:
+    """Where the reward head predicts a reward that the true dynamics do not give (depth 0, at every
+    full-context step of a model-free rollout): split by whether the window holds a rewarded step,
+    and each false positive by its kind: the move's start and end cells' distance to the goal."""
+    c = model.config
+    gen = torch.Generator().manual_seed(seed)
+    counts = {"reward in window": [0, 0], "no reward in window": [0, 0]}  # [false pos., non-goal]
+    kinds: dict[str, int] = {}
+    goal = batch.core._coords[batch.core._goal]  # (B, S) the goal cell of each task
+    for _, _, ctx, state, logits, rewards in _full_context_steps(model, batch, episodes, seed):
+        seen = (np.stack(rewards[-(c.context_length - 1) :]) > 0).any(0)  # (B,) in the window
+        (d0,) = _imagined(model, ctx, state, logits, 1, gen)
+        nxt, rew = batch.imagine(np.rint(d0["states"]), d0["actions"])
+        fp = (d0["reward"] >= 0.5) & (rew < 0.5)  # (B, A)
+        for b in range(len(state)):
+            key = "reward in window" if seen[b] else "no reward in window"
+            counts[key][0] += int(fp[b].sum())
+            counts[key][1] += int((rew[b] < 0.5).sum())
+            for i in np.where(fp[b])[0]:
+                d_from = int(np.abs(d0["states"][b, i] - goal[b]).sum())
+                d_to = int(np.abs(nxt[b, i] - goal[b]).sum())
+                kind = f"from {d_from} to {d_to} cells from the goal"
+                kinds[kind] = kinds.get(kind, 0) + 1
+    total = sum(kinds.values())
+    return {
+        "rate": {k: round(f / max(n, 1), 4) for k, (f, n) in counts.items()},
+        "non_goal_candidates": {k: n for k, (_, n) in counts.items()},
+        "false_positives": total,
+        "kinds": {
+            k: round(v / max(total, 1), 3)
+            for k, v in sorted(kinds.items(), key=lambda kv: -kv[1])[:6]
+        },
+    }
+
+
+def goal_departures(dataset: str) -> dict:
+    """How often the source agents leave the goal in the training data: the steps that start on the
+    goal (the step before was rewarded, same episode) and of those, the ones that earn nothing.  The
+    reward head sees (on the goal, leave, 0) only this often against (on the goal, stay, 1)."""
+    import pyarrow.parquet as pq
+
+    n = on_goal = leave = 0
+    cols = ["next.reward", "next.done", "history_index"]
+    for f in sorted(Path(dataset, "data").glob("**/*.parquet")):
+        t = pq.read_table(f, columns=cols)
+        r, d, h = (t[c].to_numpy() for c in cols)
+        same = np.r_[False, (h[1:] == h[:-1]) & ~d[:-1]]  # the step before is in the same episode
+        starts_on_goal = np.r_[False, r[:-1] > 0] & same
+        n, on_goal = n + len(r), on_goal + int(starts_on_goal.sum())
+        leave += int((starts_on_goal & (r == 0)).sum())
+    return {
+        "steps": n,
+        "start_on_goal": round(on_goal / max(n, 1), 4),
+        "leave_of_those": round(leave / max(on_goal, 1), 4),
+    }
+
+
+PARTS = ("runs", "heads", "depth", "false-positives", "data")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -152,45 +220,54 @@ def main() -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--split-seed", type=int, default=0)
     p.add_argument("--json", default=None)
+    p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
+                   help="what to measure (default: all)")  # fmt: skip
     args = p.parse_args()
     model = load_model(args.model)
     env = model.config.env_id
     tasks = resolve_tasks(env, "test", args.split_seed)
     optimal = float(get_spec(env).optimal_returns()[tasks].mean())
-    out = {"model": args.model, "env_id": env, "tasks": tasks, "optimal": optimal, "runs": {}}
-    for mode, kw in [
-        ("no plan", {}),
-        ("plan, learned dynamics", {"plan": True}),
-        ("plan, true dynamics", {"plan": True, "plan_dynamics": "oracle"}),
+    out = {"model": args.model, "env_id": env, "tasks": tasks, "optimal": optimal}
+    if args.json and Path(args.json).exists():  # add the parts asked for to an earlier diagnosis
+        earlier = json.loads(Path(args.json).read_text())
+        if earlier.get("model") == args.model and earlier.get("tasks") == tasks:
+            out = {**earlier, **out}
+
+    def batch(seed):
+        return make_task_batch(env, tasks, args.split_seed, seed)
+
+    if "runs" in args.parts:
+        out["runs"] = {}
+        for mode, kw in [
+            ("no plan", {}),
+            ("plan, learned dynamics", {"plan": True}),
+            ("plan, true dynamics", {"plan": True, "plan_dynamics": "oracle"}),
+        ]:
+            per_seed = []
+            for seed in args.seeds:
+                t0 = time.perf_counter()
+                res = rollout(model, batch(seed), args.episodes, seed=seed, progress=False, **kw)
+                per_seed.append(
+                    {
+                        "mean": float(res.returns.mean()),
+                        "last10": float(res.returns[:, -10:].mean()),
+                        "wall_s": round(time.perf_counter() - t0, 1),
+                    }  # fmt: skip
+                )
+            out["runs"][mode] = per_seed
+            print(mode, json.dumps(per_seed))
+    for part, key, fn in [
+        ("heads", "heads", head_accuracy),
+        ("depth", "by_depth", depth_accuracy),
+        ("false-positives", "false_positives", false_positives),
     ]:
-        per_seed = []
-        for seed in args.seeds:
-            t0 = time.perf_counter()
-            res = rollout(model, make_task_batch(env, tasks, args.split_seed, seed),
-                          args.episodes, seed=seed, progress=False, **kw)  # fmt: skip
-            per_seed.append(
-                {
-                    "mean": float(res.returns.mean()),
-                    "last10": float(res.returns[:, -10:].mean()),
-                    "wall_s": round(time.perf_counter() - t0, 1),
-                }  # fmt: skip
-            )
-        out["runs"][mode] = per_seed
-        print(mode, json.dumps(per_seed))
-    out["heads"] = {
-        seed: head_accuracy(
-            model, make_task_batch(env, tasks, args.split_seed, seed), args.episodes, seed
-        )  # fmt: skip
-        for seed in args.seeds
-    }
-    print(json.dumps(out["heads"], indent=1))
-    out["by_depth"] = {
-        seed: depth_accuracy(
-            model, make_task_batch(env, tasks, args.split_seed, seed), args.episodes, seed
-        )  # fmt: skip
-        for seed in args.seeds
-    }
-    print(json.dumps(out["by_depth"], indent=1))
+        if part in args.parts:
+            out[key] = {seed: fn(model, batch(seed), args.episodes, seed) for seed in args.seeds}
+            print(key, json.dumps(out[key], indent=1))
+    if "data" in args.parts:
+        dataset = json.loads(Path(args.model, "train_config.json").read_text())["dataset"]["path"]
+        out["goal_departures"] = {"dataset": dataset, **goal_departures(dataset)}
+        print("goal_departures", out["goal_departures"])
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=1))

@@ -17,6 +17,12 @@ LABEL_POSITIONS: tuple[str, ...] = get_args(LabelPositions)
 
 ModelPreset = Literal["paper", "lightweight", "tiny"]
 
+# How integer (grid) states are encoded: one-hot per coordinate, or one-hot over the grid's cells
+# (ICRLConfig's docstring says why cells).  MAX_CELLS bounds the cell one-hot's width.
+StateEncoding = Literal["cells", "coordinates"]
+STATE_ENCODINGS: tuple[str, ...] = get_args(StateEncoding)
+MAX_CELLS = 4096
+
 # Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,
 # dropout 0.1); "lightweight": appendix "ICRL with lightweight models" (2/2/16/64); "tiny": tests.
 PRESETS: dict[str, dict] = {

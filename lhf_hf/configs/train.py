@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from lhf_hf.constants import Objective
 from lhf_hf.utils.hub import validate_repo_id
 
-from .model import LabelPositions, ModelPreset, check_model_fields
+from .model import LabelPositions, ModelPreset, StateEncoding, check_model_fields
 from .types import check_types
 
 
@@ -35,6 +35,10 @@ class TrainConfig:
     beta2: AdamW beta2 (paper 0.99).
     max_grad_norm: gradient clipping norm (paper 1).
     dynamics_coef: xi, the DICP dynamics loss weight.
+    state_encoding: integer (grid) states as ``coordinates`` (one-hot per coordinate; DICP predicts
+        each coordinate) or ``cells`` (one-hot over the grid's cells; DICP predicts the next cell as
+        one class, the reference's encoding); real-valued states are used as they are.  Measured on
+        Darkroom (docs/training.md): coordinates learn faster at the cpu budget.
     seed: seeds the model init, dropout and the window sampler (every process gets the same seed).
     save_steps: checkpoint interval (resumable with ``resume``).
     logging_steps: loss log interval.
@@ -61,6 +65,7 @@ class TrainConfig:
     beta2: float = 0.99
     max_grad_norm: float = 1.0
     dynamics_coef: float = 1.0
+    state_encoding: StateEncoding = "coordinates"
     seed: int = 0
     save_steps: int = 500
     logging_steps: int = 50

@@ -22,7 +22,8 @@ class StepTokens:
         c = model.config
         self.bins, self.S, self.A = c.state_bins, c.state_dim, c.action_dim
         self.discrete = c.discrete_actions
-        self.sf = model.state_features  # S * bins (one-hot per coordinate) or S
+        self.sf = model.state_features  # cells, S * bins (one-hot per coordinate) or S
+        self.cells = c.cell_encoded
         self.dtype = model.embed_transition.weight.dtype  # computed in float32, returned in this
 
         def weights(linear) -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +37,11 @@ class StepTokens:
 
     def _states(self, out: np.ndarray, states: np.ndarray) -> None:
         """Write the state features of ``states`` (B, S) into ``out`` (B, sf), zero on entry."""
-        if self.bins:
+        if self.cells:  # encode_states: one-hot over the cells, row-major, coordinates clamped
+            idx = np.minimum(np.maximum(states.astype(np.int64), 0), self.bins - 1)  # (B, S)
+            cell = idx @ (self.bins ** np.arange(self.S - 1, -1, -1))  # (B,)
+            out[np.arange(len(states)), cell] = 1.0
+        elif self.bins:
             # encode_states: integer coordinates clamped to [0, bins), one-hot per coordinate
             # (np.minimum/np.maximum: np.clip's Python wrapper costs more than the encoding)
             idx = np.minimum(np.maximum(states.astype(np.int64), 0), self.bins - 1)  # (B, S)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from huggingface_hub.dataclasses import strict
 from transformers import LlamaConfig
 
-from lhf_hf.configs.model import PRESETS, check_model_fields
+from lhf_hf.configs.model import MAX_CELLS, PRESETS, STATE_ENCODINGS, check_model_fields
 
 
 @strict
@@ -28,6 +28,11 @@ class ICRLConfig(LlamaConfig):
     state_bins: 0 for real-valued states; otherwise every state coordinate is an integer in
         ``[0, state_bins)`` (the gridworlds): it is one-hot encoded at the input and predicted by a
         categorical head per coordinate (DICP).
+    state_encoding: how integer states enter and leave the model: ``coordinates`` (one-hot per
+        coordinate; the next-state head classifies each coordinate) or ``cells`` (one-hot over the
+        ``state_bins ** state_dim`` cells; the next-state head is one class over the cells: the
+        reference DICP's query-state embedding and 81-way next-state head).  Ignored for real-valued
+        states.
     action_dim: number of actions (discrete) or action dimensions (continuous).
     discrete_actions: categorical action head when True, Gaussian head with learned log-std when False.
     context_length: transitions the model sees (darkroom 80, other gridworlds 200, Meta-World 1000).
@@ -53,6 +58,7 @@ class ICRLConfig(LlamaConfig):
     env_id: str | None = None
     state_dim: int = 2
     state_bins: int = 0
+    state_encoding: str = "coordinates"
     action_dim: int = 5
     discrete_actions: bool = True
     context_length: int = 80
@@ -98,6 +104,14 @@ class ICRLConfig(LlamaConfig):
                 raise bad(name, "must be >= 1")
         if self.state_bins < 0 or self.state_bins == 1:
             raise bad("state_bins", "must be 0 (real-valued states) or >= 2")
+        if self.state_encoding not in STATE_ENCODINGS:
+            raise bad("state_encoding", f"must be one of {STATE_ENCODINGS}")
+        if self.state_encoding == "cells" and self.state_bins and self.cells > MAX_CELLS:
+            raise bad(
+                "state_encoding",
+                f"'cells' needs state_bins ** state_dim <= {MAX_CELLS} "
+                f"({self.state_bins} ** {self.state_dim} = {self.cells}); use 'coordinates'",
+            )
         if self.discrete_actions and self.action_dim < 2:
             raise bad("action_dim", "must be >= 2 for a discrete action space")
         if self.return_scale <= 0:
@@ -107,6 +121,16 @@ class ICRLConfig(LlamaConfig):
         if self.plan_samples < 1:
             raise bad("plan_samples", "must be >= 1")
         super().__post_init__(**kwargs)
+
+    @property
+    def cells(self) -> int:
+        """Number of distinct integer states (``state_bins ** state_dim``), 0 for real states."""
+        return self.state_bins**self.state_dim if self.state_bins else 0
+
+    @property
+    def cell_encoded(self) -> bool:
+        """Integer states encoded as one cell one-hot (``state_encoding == "cells"``)."""
+        return bool(self.state_bins) and self.state_encoding == "cells"
 
     @property
     def tokens_per_transition(self) -> int:

@@ -56,7 +56,8 @@ class ICRLOutput(ModelOutput):
     reward_pred: (B, T) predicted reward of (s_j, a_j) (DICP; with reward classes: the most likely
         class's value).
     reward_logits: (B, T, C) logits over ``config.reward_values`` (DICP with reward classes).
-    next_state_logits: (B, T, S, bins) per-coordinate logits of s'_j (DICP, integer states).
+    next_state_logits: logits of s'_j (DICP, integer states): (B, T, S, bins) per coordinate, or
+        (B, T, cells) with ``state_encoding="cells"``.
     next_state_pred: (B, T, S) predicted s'_j (DICP, real-valued states).
     return_pred: (B, T) predicted return-to-go from (s_j, a_j), in units of ``return_scale`` (DICP).
     backbone_cache: the backbone's KV cache (a ``transformers.Cache``) when ``use_cache``.
@@ -105,7 +106,8 @@ class ICRLModel(ICRLPreTrainedModel):
             self.reward_head = nn.Linear(D, len(rv) if rv else 1)  # classes, or a regression
             self.return_head = nn.Linear(D, 1)
             S, bins = config.state_dim, config.state_bins
-            self.next_state_head = nn.Linear(D, S * bins if bins else S)
+            n_out = config.cells if config.cell_encoded else S * bins if bins else S
+            self.next_state_head = nn.Linear(D, n_out)
         self.post_init()
 
     # ------------------------------------------------------------------ encoders
@@ -117,14 +119,31 @@ class ICRLModel(ICRLPreTrainedModel):
     @property
     def state_features(self) -> int:
         c = self.config
+        if c.cell_encoded:
+            return c.cells
         return c.state_dim * c.state_bins if c.state_bins else c.state_dim
 
+    def cell_of(self, states: torch.Tensor) -> torch.Tensor:
+        """(..., S) integer coordinates -> (...) cell index, row-major (clamped to the grid)."""
+        bins, S = self.config.state_bins, self.config.state_dim
+        strides = bins ** torch.arange(S - 1, -1, -1, device=states.device)  # (S,)
+        return (states.long().clamp(0, bins - 1) * strides).sum(-1)
+
+    def coords_of(self, cells: torch.Tensor) -> torch.Tensor:
+        """(...) cell index -> (..., S) integer coordinates; ``cell_of``'s inverse."""
+        bins, S = self.config.state_bins, self.config.state_dim
+        strides = bins ** torch.arange(S - 1, -1, -1, device=cells.device)  # (S,)
+        return (cells[..., None] // strides) % bins
+
     def encode_states(self, states: torch.Tensor) -> torch.Tensor:
-        """(..., S) -> (..., S * bins) one-hot per coordinate, or (..., S) float."""
-        bins = self.config.state_bins
-        if bins:
-            onehot = F.one_hot(states.long().clamp(0, bins - 1), bins)  # (..., S, bins)
-            return onehot.flatten(-2).to(self._dtype)  # (..., S * bins)
+        """(..., S) -> (..., cells) one cell one-hot, (..., S * bins) one-hot per coordinate, or
+        (..., S) float (``ICRLConfig.state_encoding``)."""
+        c = self.config
+        if c.cell_encoded:
+            return F.one_hot(self.cell_of(states), c.cells).to(self._dtype)  # (..., cells)
+        if c.state_bins:
+            onehot = F.one_hot(states.long().clamp(0, c.state_bins - 1), c.state_bins)
+            return onehot.flatten(-2).to(self._dtype)  # (..., S, bins) -> (..., S * bins)
         return states.to(self._dtype)
 
     def encode_actions(self, actions: torch.Tensor) -> torch.Tensor:
@@ -205,7 +224,9 @@ class ICRLModel(ICRLPreTrainedModel):
         else:
             out["reward_pred"] = r.squeeze(-1)  # (B, T)
         ns = self.next_state_head(hidden)
-        if c.state_bins:
+        if c.cell_encoded:
+            out["next_state_logits"] = ns  # (B, T, cells)
+        elif c.state_bins:
             out["next_state_logits"] = ns.unflatten(
                 -1, (c.state_dim, c.state_bins)
             )  # (B, T, S, bins)
@@ -227,12 +248,14 @@ class ICRLModel(ICRLPreTrainedModel):
             )
         return idx
 
-    @staticmethod
-    def predicted_next_states(out: dict) -> torch.Tensor:
+    def predicted_next_states(self, out: dict) -> torch.Tensor:
         """Most likely next state (B, T, S) from ``dynamics`` output."""
-        if out.get("next_state_logits") is not None:
-            return out["next_state_logits"].argmax(-1)
-        return out["next_state_pred"]
+        logits = out.get("next_state_logits")
+        if logits is None:
+            return out["next_state_pred"]
+        if self.config.cell_encoded:
+            return self.coords_of(logits.argmax(-1))  # (B, T) cell -> (B, T, S)
+        return logits.argmax(-1)
 
     # ------------------------------------------------------------------ forward
     def forward(
@@ -339,7 +362,10 @@ class ICRLModel(ICRLPreTrainedModel):
         return_loss = F.mse_loss(
             out["return_pred"][mask], returns[mask].to(self._dtype) / c.return_scale
         )
-        if c.state_bins:
+        if c.cell_encoded:
+            logits = out["next_state_logits"][mask]  # (N, cells)
+            state_loss = F.cross_entropy(logits, self.cell_of(next_states[mask]))
+        elif c.state_bins:
             logits = out["next_state_logits"][mask]  # (N, S, bins)
             state_loss = F.cross_entropy(logits.flatten(0, 1), next_states[mask].long().flatten())
         else:

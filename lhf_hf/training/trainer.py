@@ -45,8 +45,10 @@ IDENTITY_FILE = "lhf_train_identity.json"
 #: TrainConfig fields that decide what a step computes (logging, saving and places do not).
 _IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", "lr",
                     "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
-                    "dynamics_coef", "seed", "batch_size", "max_steps")  # fmt: skip
-_MODEL_FIELDS = ("objective", "state_dim", "state_bins", "action_dim", "discrete_actions",
+                    "dynamics_coef", "seed", "batch_size", "max_steps",
+                    "state_encoding")  # fmt: skip
+_MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "action_dim",
+                 "discrete_actions",
                  "context_length", "label_positions", "hidden_size", "intermediate_size",
                  "num_hidden_layers", "num_attention_heads", "dynamics_coef")  # fmt: skip
 PICKLED_TRAINING_ARGS = "training_args.bin"
@@ -154,6 +156,7 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
         env_id=spec.env_id,
         state_dim=int(np.prod(state_space.shape)),
         state_bins=int(state_space.high.max()) + 1 if integer_states else 0,
+        state_encoding=cfg.state_encoding,
         action_dim=int(action_space.n) if discrete else int(np.prod(action_space.shape)),
         discrete_actions=discrete,
         context_length=cfg.context_length or spec.context_length,

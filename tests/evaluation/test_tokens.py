@@ -12,6 +12,10 @@ from lhf_hf.modeling import ICRLModel, icrl_config
 CASES = {
     # integer grid states (one-hot per coordinate, out-of-range coordinates clamped), discrete actions
     "grid": dict(state_dim=2, state_bins=9, action_dim=5, discrete_actions=True),
+    # the same states as one cell one-hot (row-major, out-of-range coordinates clamped)
+    "cells": dict(
+        state_dim=2, state_bins=9, state_encoding="cells", action_dim=5, discrete_actions=True
+    ),
     # real-valued states, continuous actions (Meta-World)
     "continuous": dict(state_dim=6, state_bins=0, action_dim=4, discrete_actions=False),
 }

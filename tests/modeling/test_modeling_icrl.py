@@ -335,3 +335,53 @@ def test_categorical_reward_head_loss_prediction_and_round_trip(tmp_path):
     torch.testing.assert_close(again(**batch).reward_logits, out.reward_logits)
     with pytest.raises(ValueError, match="reward_values"):
         icrl_config("tiny", objective="dicp", reward_values=[1.0, 0.0])
+
+
+def test_cell_encoding_features_next_state_class_and_round_trip(tmp_path):
+    """``state_encoding="cells"``: a state is the one-hot of its row-major cell (x * bins + y, by
+    hand), the next-state head is one class over the cells (cross-entropy by hand), its argmax is
+    decoded to coordinates, and the config survives save/load."""
+    import torch.nn.functional as F
+
+    config = icrl_config("tiny", objective="dicp", state_dim=2, state_bins=9, action_dim=5,
+                         context_length=6, reward_values=[0.0, 1.0], state_encoding="cells")  # fmt: skip
+    torch.manual_seed(0)
+    model = ICRLModel(config).eval()
+    assert model.state_features == 81 and model.next_state_head.out_features == 81
+    grid = torch.tensor([[x, y] for x in range(9) for y in range(9)])  # (81, 2) row-major
+    assert torch.equal(model.encode_states(grid), torch.eye(81))
+    assert torch.equal(model.cell_of(torch.tensor([[3, 7], [-2, 11]])), torch.tensor([34, 8]))
+    assert torch.equal(model.coords_of(model.cell_of(grid)), grid)
+    B, T = 2, 6
+    g = torch.Generator().manual_seed(1)
+    states = torch.randint(0, 9, (B, T, 2), generator=g)
+    nxt = torch.randint(0, 9, (B, T, 2), generator=g)
+    actions = torch.randint(0, 5, (B, T), generator=g)
+    rewards = (torch.rand(B, T, generator=g) < 0.3).float()
+    batch = dict(states=states, prev_states=states, prev_actions=actions, prev_rewards=rewards,
+                 prev_dones=torch.zeros(B, T, dtype=torch.bool), has_prev=torch.ones(B, T, dtype=torch.bool),
+                 actions=actions, action_labels=actions, reward_labels=rewards,
+                 next_state_labels=nxt, return_labels=rewards)  # fmt: skip
+    out = model(**batch)
+    assert out.next_state_logits.shape == (B, T, 81)
+    ce = F.cross_entropy(out.reward_logits.flatten(0, 1), rewards.long().flatten())
+    cell = nxt[..., 0] * 9 + nxt[..., 1]  # (B, T)
+    state_ce = F.cross_entropy(out.next_state_logits.flatten(0, 1), cell.flatten())
+    ret = F.mse_loss(out.return_pred, rewards / config.return_scale)
+    torch.testing.assert_close(out.dynamics_loss, ce + state_ce + ret)
+    best = out.next_state_logits.argmax(-1)  # (B, T)
+    pred = model.predicted_next_states({"next_state_logits": out.next_state_logits})
+    assert torch.equal(pred, torch.stack([best // 9, best % 9], -1))
+    model.save_pretrained(tmp_path)
+    again = AutoModel.from_pretrained(tmp_path).eval()
+    assert again.config.state_encoding == "cells"
+    torch.testing.assert_close(again(**batch).next_state_logits, out.next_state_logits)
+
+
+def test_cell_encoding_refuses_unknown_names_and_huge_grids():
+    with pytest.raises(ValueError, match="ICRLConfig.state_encoding must be one of"):
+        icrl_config("tiny", state_bins=9, state_encoding="pixels")
+    with pytest.raises(ValueError, match="'cells' needs state_bins \\*\\* state_dim <= 4096"):
+        icrl_config("tiny", state_dim=3, state_bins=17, state_encoding="cells")
+    # real-valued states ignore the encoding
+    assert not icrl_config("tiny", state_bins=0, state_encoding="cells").cell_encoded
