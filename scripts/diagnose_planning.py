@@ -45,7 +45,7 @@ def _full_context_steps(model, batch, episodes: int, seed: int):
     c = model.config
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    ctx, tokens = Context(model, mode="cache"), StepTokens(model)
+    ctx, tokens = Context(model, mode="auto"), StepTokens(model)
     prev, steps, rewards = None, 0, []
     for ep in range(episodes):
         state = batch.reset()

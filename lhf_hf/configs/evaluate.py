@@ -8,7 +8,7 @@ from typing import Literal, get_args
 
 from .types import check_types
 
-Context = Literal["cache", "recompute", "window"]
+Context = Literal["auto", "cache", "recompute", "window"]
 PlanDynamics = Literal["model", "oracle"]
 PlanOrder = Literal["sample", "argmax"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
@@ -26,10 +26,12 @@ class EvalConfig:
     episodes: episodes per task (paper: 100), from an empty context.
     plan: DICP planning (beam search / greedy search) once the context is full.
     seed: seeds action sampling (and Meta-World resets).
-    context: how the sliding context is kept (``lhf_hf.evaluation.context``): ``cache`` the
-        sliding-window KV cache (fast), ``recompute`` the same function recomputed over its receptive
-        field every step (the exactness and speed reference), ``window`` the reference code's
-        protocol (only the last K transitions re-encoded from scratch every step).
+    context: how the sliding context is kept (``lhf_hf.evaluation.context``): ``auto`` the model's
+        own training semantics (``window`` for a model trained on windows, ``cache`` for one trained
+        with ``attention="band"``), ``cache`` the sliding-window KV cache (fast; band attention),
+        ``recompute`` the same function recomputed over its receptive field every step (the
+        exactness and speed reference), ``window`` the reference code's protocol (only the last K
+        transitions re-encoded from scratch every step, as in a training window).
     overwrite: replace the evaluation ``out`` holds (without it, an existing one is an error).
     plan_dynamics: what the planner imagines with: ``model`` (the learned reward and next-state
         heads) or ``oracle`` (the environment's true dynamics, gridworlds without a key: the
@@ -47,7 +49,7 @@ class EvalConfig:
     episodes: int = 100
     plan: bool = False
     seed: int = 0
-    context: Context = "cache"
+    context: Context = "auto"
     overwrite: bool = False
     plan_dynamics: PlanDynamics = "model"
     plan_order: PlanOrder = "sample"

@@ -23,6 +23,13 @@ StateEncoding = Literal["cells", "coordinates"]
 STATE_ENCODINGS: tuple[str, ...] = get_args(StateEncoding)
 MAX_CELLS = 4096
 
+# What a token attends to (ICRLConfig.attention): "window" = causal attention within a training
+# window of K transitions (the reference's; evaluated by re-encoding the last window); "band" =
+# every token attends to the last K transitions' tokens in every layer, trained on longer sequences
+# (evaluated with the streaming KV cache, the same function).
+Attention = Literal["window", "band"]
+ATTENTIONS: tuple[str, ...] = get_args(Attention)
+
 # Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,
 # dropout 0.1); "lightweight": appendix "ICRL with lightweight models" (2/2/16/64); "tiny": tests.
 PRESETS: dict[str, dict] = {

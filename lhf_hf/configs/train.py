@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from lhf_hf.constants import Objective
 from lhf_hf.utils.hub import validate_repo_id
 
-from .model import LabelPositions, ModelPreset, StateEncoding, check_model_fields
+from .model import Attention, LabelPositions, ModelPreset, StateEncoding, check_model_fields
 from .types import check_types
 
 
@@ -28,6 +28,13 @@ class TrainConfig:
         gridworlds 200, Meta-World 1000).
     label_positions: ``all`` (a label at every position) or ``query`` (last position only, as the
         reference AD); None = ``all``.
+    attention: ``window`` (windows of ``context_length`` transitions, causal attention: the
+        reference's; evaluated by re-encoding the last window) or ``band`` (sequences of
+        ``sequence_length`` transitions where every token attends to the last ``context_length``
+        transitions' tokens; evaluated with the streaming KV cache, the same function).
+        docs/training.md compares the two (windows learn more per CPU-minute on Darkroom).
+    sequence_length: transitions per training sequence with ``attention="band"``; None = 4 x the
+        context length.
     lr: peak learning rate (paper 1e-2), cosine decay to 0 after ``warmup_steps`` of linear warm-up.
     warmup_steps: steps of linear learning-rate warm-up from 0 (the paper's GPU runs: 1,000).
     weight_decay: AdamW weight decay (paper 0.01).
@@ -58,6 +65,8 @@ class TrainConfig:
     batch_size: int = 64
     context_length: int | None = None
     label_positions: LabelPositions | None = None
+    attention: Attention = "window"
+    sequence_length: int | None = None
     lr: float = 1e-2
     warmup_steps: int = 0
     weight_decay: float = 0.01
@@ -100,6 +109,13 @@ class TrainConfig:
             raise bad("weight_decay", "must be >= 0")
         if not self.max_grad_norm > 0:
             raise bad("max_grad_norm", "must be > 0")
+        if self.sequence_length is not None:
+            if self.attention != "band":
+                raise bad("sequence_length", "is for attention='band' only")
+            if self.sequence_length < (self.context_length or 1):
+                raise bad("sequence_length", f"must be >= context_length={self.context_length}")
+        if self.attention == "band" and self.label_positions == "query":
+            raise bad("label_positions", "must be 'all' with attention='band'")
         if self.resume and self.overwrite:
             raise ValueError("TrainConfig: resume and overwrite exclude each other")
         for name in ("beta1", "beta2"):

@@ -32,20 +32,20 @@ from __future__ import annotations
 import torch
 from transformers import DynamicCache
 
+from lhf_hf.modeling.attention import band_mask
+
 from .decode import LeanLlama, supported
 
 MODES = ("cache", "recompute", "window")
+
+
+def trained_mode(model) -> str:
+    """The mode that computes the function the model was trained as: ``cache`` (band attention,
+    ``ICRLConfig.attention == "band"``) or ``window`` (trained on windows, causal attention)."""
+    return "cache" if model.config.attention == "band" else "window"
+
+
 ENGINES = ("auto", "lean", "hf")  # auto: lean where supported (cache mode), else HF's forward
-
-
-def band_mask(q_pos, q_win, k_pos, dtype=torch.float32) -> torch.Tensor:
-    """Additive attention bias (n, m): query i (stream position ``q_pos[i]``, window ``q_win[i]``) may
-    attend to key j iff ``q_pos[i] - q_win[i] < k_pos[j] <= q_pos[i]``.
-
-    A float bias, not a boolean mask: CPU SDPA converts a boolean mask on every layer."""
-    lo = (q_pos - q_win)[:, None]  # (n, 1)
-    ok = (k_pos[None, :] > lo) & (k_pos[None, :] <= q_pos[:, None])  # (n, m)
-    return torch.zeros(ok.shape, dtype=dtype).masked_fill_(~ok, float("-inf"))
 
 
 class Context:
@@ -61,6 +61,8 @@ class Context:
     def __init__(
         self, model, mode: str = "cache", max_tokens: int | None = None, engine: str = "auto"
     ):
+        if mode == "auto":
+            mode = trained_mode(model)
         if mode not in MODES:
             raise ValueError(f"unknown context mode {mode!r}: one of {MODES}")
         if engine not in ENGINES:

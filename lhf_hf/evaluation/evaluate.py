@@ -113,6 +113,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         "env_steps_per_s": round(res.env_steps / res.wall_s, 1),
         "planned_steps": res.planned_steps,
         "engine": res.engine,
+        "context": res.context,
         "versions": library_versions(["transformers"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

@@ -32,6 +32,7 @@ class RolloutResult:
     env_steps: int
     planned_steps: int
     engine: str = "hf"  # the cached step's forward: "lean" (decode.py) or "hf" (LlamaModel.forward)
+    context: str = "cache"  # the context mode that ran ("auto" resolved)
 
 
 def _tensor(x, dtype=None) -> torch.Tensor:
@@ -60,7 +61,7 @@ def rollout(
     episodes: int,
     seed: int = 0,
     plan: bool = False,
-    context: str = "cache",
+    context: str = "auto",
     progress: bool = True,
     record_actions: bool = False,
     engine: str = "auto",
@@ -69,7 +70,8 @@ def rollout(
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
-    ``context``: how the sliding context is computed (``Context`` modes); ``engine``: the cached
+    ``context``: how the sliding context is computed (``Context`` modes; ``auto``: the model's
+    training semantics, ``context.trained_mode``); ``engine``: the cached
     step's forward, ``auto`` (the lean exact decoder where the model allows it), ``lean`` or ``hf``;
     ``plan_dynamics``: ``model`` (the learned heads) or ``oracle`` (the environment's own dynamics
     inside the planner, a diagnostic; gridworlds without a key); ``plan_order``: the beam search's
@@ -163,4 +165,5 @@ def rollout(
         env_steps=steps * len(state),
         planned_steps=planned,
         engine=ctx.engine,
+        context=ctx.mode,
     )

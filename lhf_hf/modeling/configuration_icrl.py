@@ -12,7 +12,7 @@ from __future__ import annotations
 from huggingface_hub.dataclasses import strict
 from transformers import LlamaConfig
 
-from lhf_hf.configs.model import MAX_CELLS, PRESETS, STATE_ENCODINGS, check_model_fields
+from lhf_hf.configs.model import ATTENTIONS, MAX_CELLS, PRESETS, STATE_ENCODINGS, check_model_fields
 
 
 @strict
@@ -36,6 +36,12 @@ class ICRLConfig(LlamaConfig):
     action_dim: number of actions (discrete) or action dimensions (continuous).
     discrete_actions: categorical action head when True, Gaussian head with learned log-std when False.
     context_length: transitions the model sees (darkroom 80, other gridworlds 200, Meta-World 1000).
+    attention: what a token attends to, which decides how the model is evaluated
+        (``lhf_hf.evaluation.context``): ``window`` (trained on windows of ``context_length``
+        transitions with causal attention, the reference's: evaluated by re-encoding the last
+        window at every step) or ``band`` (trained on longer sequences where every token attends to
+        the tokens of the last ``context_length`` transitions in every layer: evaluated with the
+        streaming KV cache, which computes exactly that function).
     label_positions: ``all``: an action label at every position (each token carries the state the
         next action is taken from); ``query``: only at the last position, as the reference AD does.
         DPT always labels every position (its loss is over every prefix).
@@ -59,6 +65,7 @@ class ICRLConfig(LlamaConfig):
     state_dim: int = 2
     state_bins: int = 0
     state_encoding: str = "coordinates"
+    attention: str = "window"
     action_dim: int = 5
     discrete_actions: bool = True
     context_length: int = 80
@@ -104,6 +111,8 @@ class ICRLConfig(LlamaConfig):
                 raise bad(name, "must be >= 1")
         if self.state_bins < 0 or self.state_bins == 1:
             raise bad("state_bins", "must be 0 (real-valued states) or >= 2")
+        if self.attention not in ATTENTIONS:
+            raise bad("attention", f"must be one of {ATTENTIONS}")
         if self.state_encoding not in STATE_ENCODINGS:
             raise bad("state_encoding", f"must be one of {STATE_ENCODINGS}")
         if self.state_encoding == "cells" and self.state_bins and self.cells > MAX_CELLS:

@@ -31,6 +31,7 @@ from transformers import AutoConfig, AutoModel, LlamaModel
 from transformers.modeling_outputs import ModelOutput
 from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
 
+from .attention import band_mask, token_windows
 from .configuration_icrl import ICRLConfig
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # Gaussian head: keeps the NLL finite early in training
@@ -257,6 +258,14 @@ class ICRLModel(ICRLPreTrainedModel):
             return self.coords_of(logits.argmax(-1))  # (B, T) cell -> (B, T, S)
         return logits.argmax(-1)
 
+    def band_attention(self, n_transitions: int, dtype=torch.float32) -> torch.Tensor:
+        """(1, 1, L, L) additive mask of ``attention="band"`` over the tokens of ``n_transitions``
+        transitions: every token sees its window (``modeling.attention``) and nothing older."""
+        c = self.config
+        win = token_windows(c.context_length, c.objective == "dicp", n_transitions)  # (L,)
+        pos = torch.arange(len(win))  # (L,)
+        return band_mask(pos, win, pos, dtype)[None, None]
+
     # ------------------------------------------------------------------ forward
     def forward(
         self,
@@ -290,6 +299,9 @@ class ICRLModel(ICRLPreTrainedModel):
             (return-to-go in environment units; scaled by ``config.return_scale`` here).
         backbone_cache: the ``backbone_cache`` of an earlier call with ``use_cache=True``: this window
             continues that one (positions follow on unless ``position_ids`` says otherwise).
+
+        With ``config.attention == "band"`` and more than ``context_length`` transitions (and no
+        cache), every token attends to its window only (``band_attention``); else causal attention.
         """
         c = self.config
         B, T = states.shape[:2]
@@ -302,7 +314,12 @@ class ICRLModel(ICRLPreTrainedModel):
                 raise ValueError("DICP's forward needs `actions` (the query-action tokens' input)")
             qa = self.embed_query_actions(states, actions)  # (B, T, D)
             tokens = torch.stack([tokens, qa], dim=2).flatten(1, 2)  # (B, T, 2, D) -> (B, 2T, D)
-        hidden, cache = self.run_backbone(tokens, backbone_cache, position_ids, use_cache)
+        mask = None
+        if c.attention == "band" and backbone_cache is None and T > c.context_length:
+            mask = self.band_attention(T, tokens.dtype).expand(B, 1, -1, -1)  # (B, 1, L, L)
+        hidden, cache = self.run_backbone(
+            tokens, backbone_cache, position_ids, use_cache, attention_mask=mask
+        )
         if dicp:
             hidden = hidden.unflatten(1, (T, 2))  # (B, 2T, D) -> (B, T, 2, D)
             policy_hidden, query_hidden = hidden[:, :, 0], hidden[:, :, 1]  # (B, T, D) each

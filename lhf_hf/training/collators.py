@@ -23,15 +23,16 @@ from .windows import HistoryArrays
 class WindowCollator(ABC):
     """Base: the transition-token inputs and the label mask; subclasses add ``labels``."""
 
-    def __init__(self, arrays: HistoryArrays, config: ICRLConfig):
+    def __init__(self, arrays: HistoryArrays, config: ICRLConfig, length: int | None = None):
         self.arrays = arrays
         self.config = config
         self.K = config.context_length
+        self.length = length or self.K  # transitions per item: K, or a band-attention sequence
 
     def rows(self, items: list[dict]) -> tuple[np.ndarray, np.ndarray]:
         start = np.fromiter((it["start"] for it in items), np.int64, len(items))  # (B,)
         first_has_prev = np.fromiter((it["has_prev"] for it in items), bool, len(items))  # (B,)
-        rows = start[:, None] + np.arange(self.K)  # (B, K)
+        rows = start[:, None] + np.arange(self.length)  # (B, L)
         has_prev = np.ones(rows.shape, bool)
         has_prev[:, 0] = first_has_prev
         return rows, has_prev
@@ -39,52 +40,56 @@ class WindowCollator(ABC):
     def __call__(self, items: list[dict]) -> dict[str, torch.Tensor]:
         a = self.arrays
         rows, has_prev = self.rows(items)
-        prev = np.maximum(rows - 1, 0)  # (B, K); row -1 only where has_prev is False
+        prev = np.maximum(rows - 1, 0)  # (B, L); row -1 only where has_prev is False
         keep = has_prev[..., None] if a.actions.ndim == 2 else has_prev
         batch = {
-            "states": torch.from_numpy(a.states[rows]),  # (B, K, S)
-            "prev_states": torch.from_numpy(a.states[prev] * has_prev[..., None]),  # (B, K, S)
-            "prev_actions": torch.from_numpy(a.actions[prev] * keep),  # (B, K) | (B, K, A)
-            "prev_rewards": torch.from_numpy(a.rewards[prev] * has_prev),  # (B, K)
-            "prev_dones": torch.from_numpy(a.dones[prev] & has_prev),  # (B, K)
-            "has_prev": torch.from_numpy(has_prev),  # (B, K)
+            "states": torch.from_numpy(a.states[rows]),  # (B, L, S)
+            "prev_states": torch.from_numpy(a.states[prev] * has_prev[..., None]),  # (B, L, S)
+            "prev_actions": torch.from_numpy(a.actions[prev] * keep),  # (B, L) | (B, L, A)
+            "prev_rewards": torch.from_numpy(a.rewards[prev] * has_prev),  # (B, L)
+            "prev_dones": torch.from_numpy(a.dones[prev] & has_prev),  # (B, L)
+            "has_prev": torch.from_numpy(has_prev),  # (B, L)
         }
         mask = np.ones(rows.shape, bool)
         if self.config.label_positions == "query":
             mask[:, :-1] = False  # the reference AD: one label per window, at the query
+        # band attention labels every position too: dropping the labels whose window reaches before
+        # the sequence start (so that every label has a full context) lost on Darkroom AD (whole-
+        # curve mean 3.46 vs 4.92 with them, docs/training.md): a model must also act well on the
+        # short contexts of a rollout's first K steps
         batch["label_mask"] = torch.from_numpy(mask)
         batch.update(self.labels(rows))
         return batch
 
     @abstractmethod
     def labels(self, rows: np.ndarray) -> dict[str, torch.Tensor]:
-        """The objective's targets (and extra inputs) for windows of frame ``rows`` (B, K)."""
+        """The objective's targets (and extra inputs) for windows of frame ``rows`` (B, L): L = the context or a band-attention sequence."""
 
 
 class ADCollator(WindowCollator):
     def labels(self, rows):
-        return {"action_labels": torch.from_numpy(self.arrays.actions[rows])}  # (B, K)
+        return {"action_labels": torch.from_numpy(self.arrays.actions[rows])}  # (B, L)
 
 
 class DPTCollator(WindowCollator):
-    def __init__(self, arrays: HistoryArrays, config: ICRLConfig):
+    def __init__(self, arrays: HistoryArrays, config: ICRLConfig, length: int | None = None):
         if arrays.optimal_actions is None:
             raise ValueError("DPT needs the oracle's optimal actions (column action.optimal)")
-        super().__init__(arrays, config)
+        super().__init__(arrays, config, length)
 
     def labels(self, rows):
-        return {"action_labels": torch.from_numpy(self.arrays.optimal_actions[rows])}  # (B, K)
+        return {"action_labels": torch.from_numpy(self.arrays.optimal_actions[rows])}  # (B, L)
 
 
 class DICPCollator(WindowCollator):
     def labels(self, rows):
         a = self.arrays
         return {
-            "actions": torch.from_numpy(a.actions[rows]),  # (B, K) | (B, K, A)
+            "actions": torch.from_numpy(a.actions[rows]),  # (B, L) | (B, L, A)
             "action_labels": torch.from_numpy(a.actions[rows]),
-            "reward_labels": torch.from_numpy(a.rewards[rows]),  # (B, K)
-            "next_state_labels": torch.from_numpy(a.next_states[rows]),  # (B, K, S) true s'
-            "return_labels": torch.from_numpy(a.returns_to_go[rows]),  # (B, K)
+            "reward_labels": torch.from_numpy(a.rewards[rows]),  # (B, L)
+            "next_state_labels": torch.from_numpy(a.next_states[rows]),  # (B, L, S) true s'
+            "return_labels": torch.from_numpy(a.returns_to_go[rows]),  # (B, L)
         }
 
 
@@ -95,5 +100,8 @@ COLLATORS: dict[str, type[WindowCollator]] = {
 }
 
 
-def make_collator(arrays: HistoryArrays, config: ICRLConfig) -> WindowCollator:
-    return COLLATORS[config.objective](arrays, config)
+def make_collator(
+    arrays: HistoryArrays, config: ICRLConfig, length: int | None = None
+) -> WindowCollator:
+    """The objective's collator for items of ``length`` transitions (default: the context)."""
+    return COLLATORS[config.objective](arrays, config, length)

@@ -46,8 +46,8 @@ IDENTITY_FILE = "lhf_train_identity.json"
 _IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", "lr",
                     "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
                     "dynamics_coef", "seed", "batch_size", "max_steps",
-                    "state_encoding")  # fmt: skip
-_MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "action_dim",
+                    "state_encoding", "attention", "sequence_length")  # fmt: skip
+_MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "attention", "action_dim",
                  "discrete_actions",
                  "context_length", "label_positions", "hidden_size", "intermediate_size",
                  "num_hidden_layers", "num_attention_heads", "dynamics_coef")  # fmt: skip
@@ -139,6 +139,13 @@ class _Throughput(TrainerCallback):
 
 
 # ---------------------------------------------------------------------------- model config
+def sequence_length(cfg: TrainConfig, config: ICRLConfig) -> int:
+    """Transitions per training item: the context (``window``) or a longer sequence (``band``)."""
+    if config.attention != "band":
+        return config.context_length
+    return cfg.sequence_length or 4 * config.context_length
+
+
 def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
     """The ICRLConfig that ``cfg`` trains on env ``spec`` (spaces, context, planning from the env)."""
     if cfg.objective == "dpt":
@@ -157,6 +164,7 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
         state_dim=int(np.prod(state_space.shape)),
         state_bins=int(state_space.high.max()) + 1 if integer_states else 0,
         state_encoding=cfg.state_encoding,
+        attention=cfg.attention,
         action_dim=int(action_space.n) if discrete else int(np.prod(action_space.shape)),
         discrete_actions=discrete,
         context_length=cfg.context_length or spec.context_length,
@@ -229,8 +237,9 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
     counts, selection = None, None
     if cfg.selection:
         counts, selection = selection_counts(cfg.selection, ds, arrays)
-    windows = WindowDataset(arrays, config.context_length, counts)
-    collator = make_collator(arrays, config)
+    length = sequence_length(cfg, config)
+    windows = WindowDataset(arrays, length, counts)
+    collator = make_collator(arrays, config, length)
 
     # The launcher's WORLD_SIZE, read before TrainingArguments sets up the process group (a bare
     # PartialState() here would initialise accelerate's shared state as non-distributed on CPU).
@@ -273,7 +282,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         args=args,
         train_dataset=windows,
         data_collator=collator,
-        callbacks=[_Throughput(cfg.batch_size * config.max_tokens)]
+        callbacks=[_Throughput(cfg.batch_size * length * config.tokens_per_transition)]
         + ([_PushCheckpoints()] if cfg.push_to_hub else []),
     )
     provenance = {

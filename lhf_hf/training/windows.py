@@ -141,7 +141,8 @@ def load_arrays(ds, integer_states: bool, discrete_actions: bool) -> HistoryArra
 
 
 class WindowDataset(torch.utils.data.Dataset):
-    """Every (history copy, offset) window of ``context_length`` transitions.
+    """Every (history copy, offset) window of ``context_length`` transitions (with band attention:
+    every training sequence, ``context_length`` = the sequence length).
 
     counts: (H,) multiplicity of each history (an LHF selection's counts; None = 1 each; 0 = never
     drawn).  Item ``i`` is ``{"start": row, "has_prev": bool}``: the window covers rows
@@ -157,8 +158,9 @@ class WindowDataset(torch.utils.data.Dataset):
         lengths = arrays.history_lengths
         if self.context_length > lengths.min():
             raise ValueError(
-                f"context length {self.context_length} is longer than the shortest history "
-                f"({int(lengths.min())} transitions): use --context-length <= {int(lengths.min())}"
+                f"a window of {self.context_length} transitions is longer than the shortest history "
+                f"({int(lengths.min())} transitions): use a --context-length (with band attention, "
+                f"a --sequence-length) <= {int(lengths.min())}"
             )
         counts = (
             np.ones(arrays.num_histories, np.int64)

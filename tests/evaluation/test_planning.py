@@ -285,7 +285,7 @@ def test_tree_beam_search_on_the_cache_is_exact_at_depth():
     reward and the policy at every imagined state must equal one forward over the whole stream (the
     context's tokens and the candidate's path) with the sliding-window band, the context's
     definition (``lhf_hf.evaluation.context``): identical choice and score."""
-    from lhf_hf.evaluation.context import band_mask
+    from lhf_hf.modeling.attention import band_mask
 
     model = _dicp_model(3, 4)
     D = model.config.hidden_size

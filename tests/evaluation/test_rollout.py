@@ -107,7 +107,8 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     _, test = task_split("darkroom", 3)  # the training dataset's split by default
     assert r["split_seed"] == 3 and r["tasks"] == list(test) and len(r["tasks"]) == 8
     assert np.asarray(r["returns"]).shape == (8, 3) and r["planned_steps"] > 0
-    assert r["engine"] == "lean"  # the default cache runs the lean decoder for a Llama ICRL model
+    # the default context is the model's training semantics: windows for a window-trained model
+    assert r["context"] == "window" and r["config"]["context"] == "auto" and r["engine"] == "hf"
     assert np.isclose(r["mean_return"], np.mean(r["returns"]))
     saved = json.loads((tmp_path / "ev" / "eval_results.json").read_text())
     assert (
@@ -150,7 +151,7 @@ def test_evaluate_errors(tmp_path):
     with pytest.raises(ValueError, match="episodes"):
         EvalConfig(model="m", out="o", episodes=0)
     with pytest.raises(
-        ValueError, match=r"context must be one of \('cache', 'recompute', 'window'\)"
+        ValueError, match=r"context must be one of \('auto', 'cache', 'recompute', 'window'\)"
     ):
         EvalConfig(model="m", out="o", context="fast")
 
@@ -240,10 +241,11 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
         == 1
     )
     assert "dynamics heads" in capsys.readouterr().err
-    # --context reaches the rollout and the results (same function: same returns)
+    # --context reaches the rollout and the results
     for flags, mode in [
         (["--context", "recompute"], "recompute"),
         (["--context", "window"], "window"),
+        (["--context", "cache"], "cache"),
     ]:
         out = tmp_path / f"e-{mode}"
         args = ["evaluate", "--model", str(tmp_path / "m"), "--episodes", "2", "--out", str(out)]
@@ -251,9 +253,12 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
         saved = json.loads((out / "eval_results.json").read_text())
         assert saved["config"]["context"] == mode
     base = json.loads((tmp_path / "e" / "eval_results.json").read_text())
-    assert base["config"]["context"] == "cache"
-    again = json.loads((tmp_path / "e-recompute" / "eval_results.json").read_text())
-    assert again["returns"] == base["returns"]
+    assert base["config"]["context"] == "auto" and base["context"] == "window"
+    window = json.loads((tmp_path / "e-window" / "eval_results.json").read_text())
+    assert window["returns"] == base["returns"]  # auto is the window-trained model's semantics
+    cache = json.loads((tmp_path / "e-cache" / "eval_results.json").read_text())
+    recompute = json.loads((tmp_path / "e-recompute" / "eval_results.json").read_text())
+    assert cache["returns"] == recompute["returns"] and cache["engine"] == "lean"  # one function
 
 
 @pytest.mark.metaworld

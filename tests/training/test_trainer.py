@@ -59,6 +59,32 @@ def test_each_objective_learns_and_saves_a_loadable_checkpoint(
     assert (out / "training_loss.png").stat().st_size > 0
 
 
+def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
+    learned_darkroom, tmp_path
+):
+    """attention="band": sequences of 4 x K transitions (the default), the model records its
+    attention, the identity its sequence length, and evaluation runs the streaming cache."""
+    from lhf_hf.configs import EvalConfig
+    from lhf_hf.evaluation import evaluate
+
+    out = train(
+        TrainConfig(
+            dataset=str(learned_darkroom.root),
+            objective="dicp",
+            out=str(tmp_path / "m"),
+            max_steps=40,
+            attention="band",
+            **TINY,
+        )  # fmt: skip
+    )
+    loss = losses(out)
+    assert len(loss) == 4 and loss[-1] < loss[0], loss
+    model = AutoModel.from_pretrained(out)
+    assert model.config.attention == "band" and model.config.context_length == 40
+    result = evaluate(EvalConfig(model=str(out), out=str(tmp_path / "e"), episodes=3), False)
+    assert result["context"] == "cache" and result["config"]["context"] == "auto"
+
+
 def test_selection_counts_weight_the_windows(small_darkroom, tmp_path):
     sel = filter_histories(small_darkroom, FilterConfig())
     sel.save(tmp_path / "sel")
@@ -111,6 +137,12 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
         )
     with pytest.raises(ValueError, match="objective"):
         TrainConfig(objective="bc", **base)
+    with pytest.raises(ValueError, match="sequence_length is for attention='band' only"):
+        TrainConfig(objective="ad", sequence_length=200, **base)
+    with pytest.raises(ValueError, match="sequence_length must be >= context_length=80"):
+        TrainConfig(objective="ad", attention="band", context_length=80, sequence_length=40, **base)
+    with pytest.raises(ValueError, match="label_positions must be 'all' with attention='band'"):
+        TrainConfig(objective="ad", attention="band", label_positions="query", **base)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(TrainConfig(objective="ad", resume=True, **base))
 

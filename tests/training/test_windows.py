@@ -161,3 +161,23 @@ def test_dpt_labels_are_the_oracle_actions(small_darkroom):
         [d[..., 0] > 0, d[..., 0] < 0, d[..., 1] > 0, d[..., 1] < 0], [0, 1, 2, 3], default=4
     )
     np.testing.assert_array_equal(batch["action_labels"].numpy(), expected)
+
+
+def test_band_attention_items_are_sequences_labelled_everywhere():
+    """attention="band": items are sequences of ``length`` transitions, every position labelled."""
+    collate = make_collator(toy_arrays(), toy_config("ad", attention="band"), length=5)  # K = 3
+    batch = collate([{"start": 1, "has_prev": True}, {"start": 6, "has_prev": False}])
+    assert batch["states"].shape == (2, 5, 2) and batch["label_mask"].all()
+    np.testing.assert_array_equal(batch["action_labels"][0].numpy(), [1, 2, 3, 4, 0])
+    np.testing.assert_array_equal(batch["has_prev"][1].numpy(), [False] + [True] * 4)
+
+
+def test_band_sequences_are_drawn_like_windows():
+    ds = WindowDataset(toy_arrays(), 5)  # two histories of 6: 2 sequences each
+    assert len(ds) == 4
+    assert [ds[i] for i in range(4)] == [
+        {"start": 0, "has_prev": False},
+        {"start": 1, "has_prev": True},
+        {"start": 6, "has_prev": False},
+        {"start": 7, "has_prev": True},
+    ]
