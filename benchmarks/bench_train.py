@@ -136,6 +136,10 @@ def main() -> None:
         rows = {}
         rows["plain_sdpa"] = plain_loop(trainer, data, args.warmup)
         rows["trainer_sdpa"] = trainer_run(c, args.warmup)
+        # batches built in a worker process while the model steps (prefetch), not in the step
+        rows["trainer_sdpa_worker"] = trainer_run(
+            c, args.warmup, dataloader_num_workers=1, dataloader_persistent_workers=True
+        )
         if objective == "ad":
             trainer.model.config._attn_implementation = "eager"
             rows["plain_eager"] = plain_loop(trainer, data, args.warmup)
