@@ -218,20 +218,52 @@ def main() -> None:
     p.add_argument("--model", required=True)
     p.add_argument("--episodes", type=int, default=40)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    p.add_argument("--split-seed", type=int, default=0)
+    p.add_argument("--split-seed", type=int, default=None,
+                   help="default: the split of the model's training dataset (as lhf evaluate)")  # fmt: skip
     p.add_argument("--json", default=None)
     p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                    help="what to measure (default: all)")  # fmt: skip
     args = p.parse_args()
+    try:
+        run(args)
+    except (ValueError, FileNotFoundError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"error: {exc}") from None
+
+
+def run(args) -> None:
+    if not Path(args.model, "config.json").is_file():
+        raise FileNotFoundError(f"{args.model} is not a model folder (no config.json)")
     model = load_model(args.model)
     env = model.config.env_id
-    tasks = resolve_tasks(env, "test", args.split_seed)
+    train_cfg = Path(args.model, "train_config.json")
+    provenance = json.loads(train_cfg.read_text()) if train_cfg.is_file() else {}
+    split_seed = args.split_seed
+    if split_seed is None:  # the unseen goals of the model's own split, as lhf evaluate
+        split_seed = int((provenance.get("dataset") or {}).get("split_seed", 0))
+    args.split_seed = split_seed
+    tasks = resolve_tasks(env, "test", split_seed)
     optimal = float(get_spec(env).optimal_returns()[tasks].mean())
-    out = {"model": args.model, "env_id": env, "tasks": tasks, "optimal": optimal}
+    model_id = str(Path(args.model).resolve())
+    needs_planner = [p for p in args.parts if p != "data"]
+    if needs_planner and model.config.objective != "dicp":
+        raise ValueError(
+            f"parts {needs_planner} need a DICP model (its planner and dynamics heads); "
+            f"{args.model} is {model.config.objective!r}"
+        )
+    if needs_planner:  # the true dynamics: refused up front for envs that cannot give them
+        probe = make_task_batch(env, tasks[:1], split_seed, 0)
+        probe.imagine(probe.reset()[:, None], np.zeros((1, 1), np.int64))
+    out = {"model": args.model, "env_id": env, "split_seed": split_seed, "tasks": tasks,
+           "optimal": optimal}  # fmt: skip
     if args.json and Path(args.json).exists():  # add the parts asked for to an earlier diagnosis
         earlier = json.loads(Path(args.json).read_text())
-        if earlier.get("model") == args.model and earlier.get("tasks") == tasks:
-            out = {**earlier, **out}
+        same = str(Path(earlier.get("model", "")).resolve()) == model_id
+        if not same or earlier.get("tasks") != tasks:
+            raise ValueError(
+                f"{args.json} holds a diagnosis of {earlier.get('model')!r} on tasks "
+                f"{earlier.get('tasks')}, not of this model on {tasks}: choose another --json"
+            )
+        out = {**earlier, **out}
 
     def batch(seed):
         return make_task_batch(env, tasks, args.split_seed, seed)
@@ -265,7 +297,9 @@ def main() -> None:
             out[key] = {seed: fn(model, batch(seed), args.episodes, seed) for seed in args.seeds}
             print(key, json.dumps(out[key], indent=1))
     if "data" in args.parts:
-        dataset = json.loads(Path(args.model, "train_config.json").read_text())["dataset"]["path"]
+        dataset = (provenance.get("dataset") or {}).get("path")
+        if dataset is None:
+            raise FileNotFoundError(f"{args.model} records no training dataset (train_config.json)")
         out["goal_departures"] = {"dataset": dataset, **goal_departures(dataset)}
         print("goal_departures", out["goal_departures"])
     if args.json:

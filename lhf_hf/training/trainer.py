@@ -143,6 +143,11 @@ def sequence_length(cfg: TrainConfig, config: ICRLConfig) -> int:
     """Transitions per training item: the context (``window``) or a longer sequence (``band``)."""
     if config.attention != "band":
         return config.context_length
+    if cfg.sequence_length is not None and cfg.sequence_length < config.context_length:
+        raise ValueError(
+            f"TrainConfig.sequence_length must be >= the context length {config.context_length}, "
+            f"got {cfg.sequence_length}"
+        )
     return cfg.sequence_length or 4 * config.context_length
 
 
@@ -156,6 +161,11 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
             )
     state_space, action_space = spec.state_space, spec.action_space
     integer_states = np.issubdtype(state_space.dtype, np.integer)
+    if cfg.state_encoding == "cells" and not integer_states:
+        raise ValueError(
+            f"TrainConfig.state_encoding='cells' needs integer (grid) states; {spec.env_id}'s states "
+            "are real-valued: use 'coordinates' (real states are used as they are)"
+        )
     discrete = isinstance(action_space, gym.spaces.Discrete)
     return icrl_config(
         cfg.preset,
@@ -297,6 +307,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         },
         "selection": selection,
         "windows": len(windows),
+        "sequence_length": length if config.attention == "band" else None,
         "world_size": world,
         "per_device_batch_size": cfg.batch_size // world,
     }
@@ -309,7 +320,9 @@ def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> di
     optimisation settings.  A resumed run must match the checkpoint's."""
     selection = provenance.get("selection") or {}
     return {
-        "train": {k: getattr(cfg, k) for k in _IDENTITY_FIELDS},
+        # the resolved sequence length: an unset one and its default are the same run
+        "train": {k: getattr(cfg, k) for k in _IDENTITY_FIELDS}
+        | {"sequence_length": provenance.get("sequence_length")},
         "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
         "dataset_fingerprint": provenance["dataset"]["fingerprint"],
         "selection_fingerprint": selection.get("counts_sha256"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -83,6 +84,15 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     assert model.config.attention == "band" and model.config.context_length == 40
     result = evaluate(EvalConfig(model=str(out), out=str(tmp_path / "e"), episodes=3), False)
     assert result["context"] == "cache" and result["config"]["context"] == "auto"
+    # the resolved sequence length is recorded, so resuming with it written out is the same run
+    prov = json.loads((out / "train_config.json").read_text())
+    assert prov["sequence_length"] == 160
+    explicit = TrainConfig(dataset=str(learned_darkroom.root), objective="dicp", out=str(out),
+                           max_steps=40, attention="band", sequence_length=160, resume=True,
+                           **TINY)  # fmt: skip
+    train(explicit)  # nothing left to do, but the identity check passes
+    with pytest.raises(ValueError, match="sequence_length: 160 -> 120"):
+        train(dataclasses.replace(explicit, sequence_length=120))
 
 
 def test_selection_counts_weight_the_windows(small_darkroom, tmp_path):
@@ -143,6 +153,15 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
         TrainConfig(objective="ad", attention="band", context_length=80, sequence_length=40, **base)
     with pytest.raises(ValueError, match="label_positions must be 'all' with attention='band'"):
         TrainConfig(objective="ad", attention="band", label_positions="query", **base)
+    # the env's context (darkroom: 80) is the bound when --context-length is not given
+    with pytest.raises(ValueError, match="sequence_length must be >= the context length 80"):
+        build_trainer(TrainConfig(objective="ad", attention="band", sequence_length=40, **base))
+    with pytest.raises(ValueError, match="state_encoding='cells' needs integer"):
+        model_config_for(
+            get_spec("metaworld-reach"),
+            TrainConfig(objective="ad", state_encoding="cells", **base),
+            has_optimal=False,
+        )
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(TrainConfig(objective="ad", resume=True, **base))
 
