@@ -146,6 +146,7 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
         "episodes": results["config"]["episodes"],
         "plan": results["config"]["plan"],
         "seed": results["config"]["seed"],
+        "context": results["context"],
         "mean_return": results["mean_return"],
         "final_return": results["final_return"],
         "success_rate": results["success_rate"],

@@ -44,14 +44,15 @@ def eval_section(evaluations: list[dict]) -> str:
         "In-context returns on unseen tasks (mean over tasks; whole curve and the last 10% of the "
         "episodes), from `lhf evaluate`:",
         "",
-        "| env | tasks | split seed | episodes | planning | mean return | final return | success |",
-        "|---|---|---|---|---|---|---|---|",
+        "| env | tasks | split seed | episodes | planning | context | mean return | final return | success |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for e in evaluations:
         succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
         lines.append(
             f"| {e['env_id']} | {e['num_tasks']} {e['tasks']} | {e['split_seed']} | {e['episodes']} | "
-            f"{'yes' if e['plan'] else 'no'} | {e['mean_return']:.3f} | {e['final_return']:.3f} | {succ} |"
+            f"{'yes' if e['plan'] else 'no'} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
+            f"{e['final_return']:.3f} | {succ} |"
         )
     return "\n".join(lines)
 
@@ -59,7 +60,9 @@ def eval_section(evaluations: list[dict]) -> str:
 def model_index(evaluations: list[dict]) -> list:
     out = []
     for e in evaluations:
-        name = f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}{', planning' if e['plan'] else ''})"
+        context = f", context {e['context']}" if e.get("context") else ""
+        plan = ", planning" if e["plan"] else ""
+        name = f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}{plan}{context})"
         out.append(
             EvalResult(
                 task_type="reinforcement-learning",
@@ -119,6 +122,12 @@ def render_model_card(
         ),
         max_steps=train["max_steps"],
         batch_size=train["batch_size"],
+        items=(
+            f"sequences of {provenance['sequence_length']} transitions, band attention over "
+            f"the last {config.context_length}"
+            if provenance.get("sequence_length")
+            else "windows"
+        ),
         world_size=provenance.get("world_size", 1),
         beta1=train["beta1"],
         beta2=train["beta2"],

@@ -87,6 +87,9 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     # the resolved sequence length is recorded, so resuming with it written out is the same run
     prov = json.loads((out / "train_config.json").read_text())
     assert prov["sequence_length"] == 160
+    card = (out / "README.md").read_text()  # the card says how it was trained and evaluated
+    assert "sequences of 160 transitions, band attention over the last 40" in card
+    assert "| no | cache |" in card and "context cache" in card
     explicit = TrainConfig(dataset=str(learned_darkroom.root), objective="dicp", out=str(out),
                            max_steps=40, attention="band", sequence_length=160, resume=True,
                            **TINY)  # fmt: skip

@@ -1,0 +1,156 @@
+"""In-context return against training wall time: how much a model learns per CPU-minute.
+
+    python benchmarks/bench_icrl_curve.py --dataset data/dr50 [--objectives ad dpt dicp]
+        [--minutes 15] [--every 2.5] [--episodes 50] [--seeds 0 1 2] [--lr 3e-3]
+        [--out results/train/icrl_curve]
+
+Trains each objective on ``--dataset`` (``lhf train``'s Trainer, the given settings) for
+``--minutes`` of wall time, saving a checkpoint every ``--every`` minutes of training (a wall-clock
+callback; the saves and the evaluations are not counted as training time).  Then every checkpoint
+is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
+empty context, one rollout per seed, each model with its own context semantics) and the mean return
+of the last 10 episodes is plotted against the training minutes, with the published levels (DICP
+paper, Darkroom: AD ~12.5, DICP ~15; issue 23's DPT target 14) as lines.  Writes ``curve.json`` and
+``curve.png`` to ``--out``; the checkpoints go to a new folder under ``--work`` (nothing is deleted).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from transformers import TrainerCallback
+
+from lhf_hf.configs import TrainConfig
+from lhf_hf.evaluation.evaluate import resolve_tasks
+from lhf_hf.evaluation.rollout import rollout
+from lhf_hf.evaluation.task_batch import make_task_batch
+from lhf_hf.modeling import load_model
+from lhf_hf.training import build_trainer
+from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.versions import library_versions
+
+# Darkroom levels to reach: the DICP paper's AD and DICP at 50 episodes; issue 23's DPT target.
+LEVELS = {"ad": 12.5, "dpt": 14.0, "dicp": 15.0}
+
+
+class WallClockCheckpoints(TrainerCallback):
+    """Save every ``every_s`` seconds of training and stop after ``total_s``; the time spent saving
+    is not counted.  ``marks``: (step, training seconds) of every save."""
+
+    def __init__(self, every_s: float, total_s: float):
+        self.every_s, self.total_s = every_s, total_s
+        self.marks: list[tuple[int, float]] = []
+        self.trained_s = 0.0
+        self.t0 = None
+
+    def on_step_begin(self, args, state, control, **kwargs):
+        self.t0 = time.perf_counter()
+
+    def on_step_end(self, args, state, control, **kwargs):
+        self.trained_s += time.perf_counter() - self.t0
+        if self.trained_s >= self.every_s * (len(self.marks) + 1) or self.trained_s >= self.total_s:
+            control.should_save = True
+            self.marks.append((state.global_step, self.trained_s))
+        if self.trained_s >= self.total_s:
+            control.should_training_stop = True
+
+
+def evaluate_checkpoint(path: Path, tasks, split_seed: int, episodes: int, seeds) -> dict:
+    model = load_model(str(path))
+    last10, whole = [], []
+    for seed in seeds:
+        batch = make_task_batch(model.config.env_id, tasks, split_seed, seed)
+        res = rollout(model, batch, episodes, seed=seed, progress=False)
+        last10.append(float(res.returns[:, -10:].mean()))
+        whole.append(float(res.returns.mean()))
+    return {"last10": last10, "whole_curve": whole, "context": res.context}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--objectives", nargs="+", default=["ad", "dpt", "dicp"],
+                   choices=["ad", "dpt", "dicp"])  # fmt: skip
+    p.add_argument("--minutes", type=float, default=15.0)
+    p.add_argument("--every", type=float, default=2.5, help="minutes between checkpoints")
+    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--lr", type=float, default=3e-3)
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--preset", default="paper")
+    p.add_argument("--out", default="results/train/icrl_curve")
+    p.add_argument("--work", default="runs/bench-icrl-curve")
+    args = p.parse_args()
+    if args.every <= 0 or args.minutes < args.every:
+        raise SystemExit("error: need 0 < --every <= --minutes")
+    results = {
+        "command": "python benchmarks/bench_icrl_curve.py "
+        + " ".join(
+            f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
+            for k, v in vars(args).items()
+        ),
+        "machine": platform.processor() or platform.machine(),
+        "torch_threads": torch.get_num_threads(),
+        "versions": library_versions(["torch", "transformers"]),
+        "levels": LEVELS,
+        "objectives": {},
+    }
+    out = Path(args.out)
+    for objective in args.objectives:
+        Path(args.work).mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f"{objective}-", dir=args.work))  # new, never reused
+        cfg = TrainConfig(dataset=args.dataset, objective=objective, out=str(work),
+                          preset=args.preset, max_steps=10**6, batch_size=args.batch_size,
+                          lr=args.lr, save_steps=10**9, logging_steps=100)  # fmt: skip
+        trainer, provenance = build_trainer(cfg)
+        clock = WallClockCheckpoints(args.every * 60, args.minutes * 60)
+        trainer.add_callback(clock)
+        trainer.args.disable_tqdm = True
+        trainer.train()
+        split_seed = int(provenance["dataset"]["split_seed"])
+        tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)
+        points = []
+        for step, trained_s in clock.marks:
+            ev = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
+                                     args.episodes, args.seeds)  # fmt: skip
+            points.append({"step": step, "minutes": round(trained_s / 60, 2), **ev})
+            print(objective, points[-1], flush=True)
+        results["objectives"][objective] = {"tasks": tasks, "points": points}
+        write_json_atomic(results, out / "curve.json")  # after each objective: nothing lost
+    plot(results, out / "curve.png", args.episodes)
+
+
+def plot(results: dict, path: Path, episodes: int) -> None:
+    import matplotlib  # deferred: only the plot needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # deferred: see above
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (objective, r) in enumerate(results["objectives"].items()):
+        colour = f"C{i}"
+        x = [pt["minutes"] for pt in r["points"]]
+        y = np.array([pt["last10"] for pt in r["points"]])  # (checkpoints, seeds)
+        ax.errorbar(x, y.mean(1), yerr=y.std(1), color=colour, marker="o", capsize=3,
+                    label=objective.upper())  # fmt: skip
+        ax.axhline(LEVELS[objective], color=colour, ls="--", lw=0.8)
+    ax.set_xlabel("training wall time (minutes, 2-core CPU)")
+    ax.set_ylabel(f"return, episodes {episodes - 9}-{episodes} (unseen goals)")
+    ax.set_title("In-context return per training minute (dashed: published levels)")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
