@@ -114,6 +114,7 @@ def main() -> None:
         clock = WallClockCheckpoints(args.every * 60, args.minutes * 60)
         trainer.add_callback(clock)
         trainer.args.disable_tqdm = True
+        trainer.args.save_total_limit = None  # every wall-clock checkpoint is evaluated
         trainer.train()
         split_seed = int(provenance["dataset"]["split_seed"])
         tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)

@@ -302,6 +302,20 @@ def test_train_config_and_model_config_share_the_model_rules(fields, field):
     assert str(model_err.value).split(" ", 1)[1] == str(train_err.value).split(" ", 1)[1]
 
 
+def labelled_dicp_batch(B: int, T: int, same_next_states: bool) -> dict:
+    """A DICP batch on a 9 x 9 grid with 0/1 rewards and every label (rewards double as returns;
+    the next states are the states themselves or drawn independently)."""
+    g = torch.Generator().manual_seed(1)
+    states = torch.randint(0, 9, (B, T, 2), generator=g)
+    nxt = states if same_next_states else torch.randint(0, 9, (B, T, 2), generator=g)
+    actions = torch.randint(0, 5, (B, T), generator=g)
+    rewards = (torch.rand(B, T, generator=g) < 0.3).float()
+    return dict(states=states, prev_states=states, prev_actions=actions, prev_rewards=rewards,
+                prev_dones=torch.zeros(B, T, dtype=torch.bool), has_prev=torch.ones(B, T, dtype=torch.bool),
+                actions=actions, action_labels=actions, reward_labels=rewards,
+                next_state_labels=nxt, return_labels=rewards)  # fmt: skip
+
+
 def test_categorical_reward_head_loss_prediction_and_round_trip(tmp_path):
     """With reward classes the head classifies (cross-entropy, by hand), predicts the most likely
     class's value, refuses rewards that are none of the classes, and survives save/load."""
@@ -312,14 +326,8 @@ def test_categorical_reward_head_loss_prediction_and_round_trip(tmp_path):
     torch.manual_seed(0)
     model = ICRLModel(config).eval()
     B, T = 2, 6
-    g = torch.Generator().manual_seed(1)
-    states = torch.randint(0, 9, (B, T, 2), generator=g)
-    actions = torch.randint(0, 5, (B, T), generator=g)
-    rewards = (torch.rand(B, T, generator=g) < 0.3).float()
-    batch = dict(states=states, prev_states=states, prev_actions=actions, prev_rewards=rewards,
-                 prev_dones=torch.zeros(B, T, dtype=torch.bool), has_prev=torch.ones(B, T, dtype=torch.bool),
-                 actions=actions, action_labels=actions, reward_labels=rewards,
-                 next_state_labels=states, return_labels=rewards)  # fmt: skip
+    batch = labelled_dicp_batch(B, T, same_next_states=True)
+    states, rewards = batch["states"], batch["reward_labels"]
     out = model(**batch)
     assert out.reward_logits.shape == (B, T, 2)
     assert torch.equal(out.reward_pred, out.reward_logits.argmax(-1).float())
@@ -353,15 +361,8 @@ def test_cell_encoding_features_next_state_class_and_round_trip(tmp_path):
     assert torch.equal(model.cell_of(torch.tensor([[3, 7], [-2, 11]])), torch.tensor([34, 8]))
     assert torch.equal(model.coords_of(model.cell_of(grid)), grid)
     B, T = 2, 6
-    g = torch.Generator().manual_seed(1)
-    states = torch.randint(0, 9, (B, T, 2), generator=g)
-    nxt = torch.randint(0, 9, (B, T, 2), generator=g)
-    actions = torch.randint(0, 5, (B, T), generator=g)
-    rewards = (torch.rand(B, T, generator=g) < 0.3).float()
-    batch = dict(states=states, prev_states=states, prev_actions=actions, prev_rewards=rewards,
-                 prev_dones=torch.zeros(B, T, dtype=torch.bool), has_prev=torch.ones(B, T, dtype=torch.bool),
-                 actions=actions, action_labels=actions, reward_labels=rewards,
-                 next_state_labels=nxt, return_labels=rewards)  # fmt: skip
+    batch = labelled_dicp_batch(B, T, same_next_states=False)
+    nxt, rewards = batch["next_state_labels"], batch["reward_labels"]
     out = model(**batch)
     assert out.next_state_logits.shape == (B, T, 81)
     ce = F.cross_entropy(out.reward_logits.flatten(0, 1), rewards.long().flatten())
