@@ -248,6 +248,14 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
     if cfg.selection:
         counts, selection = selection_counts(cfg.selection, ds, arrays)
     length = sequence_length(cfg, config)
+    shortest = int(arrays.history_lengths.min())
+    if config.context_length <= shortest < length:  # band sequences only: windows are checked below
+        default = " (the default: 4 x the context)" if cfg.sequence_length is None else ""
+        raise ValueError(
+            f"band-attention sequences of {length} transitions{default} are longer than the "
+            f"shortest history ({shortest} transitions): pass a --sequence-length between "
+            f"{config.context_length} and {shortest}"
+        )
     windows = WindowDataset(arrays, length, counts)
     collator = make_collator(arrays, config, length)
 

@@ -159,6 +159,8 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
     # the env's context (darkroom: 80) is the bound when --context-length is not given
     with pytest.raises(ValueError, match="sequence_length must be >= the context length 80"):
         build_trainer(TrainConfig(objective="ad", attention="band", sequence_length=40, **base))
+    with pytest.raises(ValueError, match=r"sequences of 240 transitions \(the default: 4 x the"):
+        build_trainer(TrainConfig(objective="ad", attention="band", context_length=60, **base))
     with pytest.raises(ValueError, match="state_encoding='cells' needs integer"):
         model_config_for(
             get_spec("metaworld-reach"),
