@@ -37,15 +37,13 @@ from lhf_hf.modeling.attention import band_mask
 from .decode import LeanLlama, supported
 
 MODES = ("cache", "recompute", "window")
+ENGINES = ("auto", "lean", "hf")  # auto: lean where supported (cache mode), else HF's forward
 
 
 def trained_mode(model) -> str:
     """The mode that computes the function the model was trained as: ``cache`` (band attention,
     ``ICRLConfig.attention == "band"``) or ``window`` (trained on windows, causal attention)."""
     return "cache" if model.config.attention == "band" else "window"
-
-
-ENGINES = ("auto", "lean", "hf")  # auto: lean where supported (cache mode), else HF's forward
 
 
 class Context:

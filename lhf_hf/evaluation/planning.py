@@ -134,17 +134,16 @@ def beam_search(
         hidden = hidden.view(B, nb, per_beam, -1)
         if beam_T is not None:  # the policy at the imagined state orders this depth's candidates
             policy = model.action_distribution(hidden[:, :, 0])["action_logits"]  # (B, nb, A)
+        from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
         if dynamics is None:
             dyn = model.dynamics(hidden[:, :, per_beam - A :].reshape(B, nb * A, -1))
             r_hat = dyn["reward_pred"]  # (B, nb * A)
             s_hat = model.predicted_next_states(dyn)  # (B, nb * A, S)
         else:
-            from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
             nxt, rew = dynamics(from_states.numpy(), acts.reshape(B, nb * A).numpy())
             s_hat = torch.as_tensor(nxt).to(beam_state.dtype)  # (B, nb * A, S)
             r_hat = torch.as_tensor(rew, dtype=torch.float32)  # (B, nb * A)
         if trace is not None:
-            from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
             trace.append(
                 {
                     "depth": depth,

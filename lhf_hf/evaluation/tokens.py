@@ -37,18 +37,18 @@ class StepTokens:
 
     def _states(self, out: np.ndarray, states: np.ndarray) -> None:
         """Write the state features of ``states`` (B, S) into ``out`` (B, sf), zero on entry."""
-        if self.cells:  # encode_states: one-hot over the cells, row-major, coordinates clamped
-            idx = np.minimum(np.maximum(states.astype(np.int64), 0), self.bins - 1)  # (B, S)
+        if not self.bins:
+            out[:] = states
+            return
+        # encode_states: integer coordinates clamped to [0, bins)
+        # (np.minimum/np.maximum: np.clip's Python wrapper costs more than the encoding)
+        idx = np.minimum(np.maximum(states.astype(np.int64), 0), self.bins - 1)  # (B, S)
+        if self.cells:  # one-hot over the cells, row-major
             cell = idx @ (self.bins ** np.arange(self.S - 1, -1, -1))  # (B,)
             out[np.arange(len(states)), cell] = 1.0
-        elif self.bins:
-            # encode_states: integer coordinates clamped to [0, bins), one-hot per coordinate
-            # (np.minimum/np.maximum: np.clip's Python wrapper costs more than the encoding)
-            idx = np.minimum(np.maximum(states.astype(np.int64), 0), self.bins - 1)  # (B, S)
+        else:  # one-hot per coordinate
             idx += np.arange(self.S) * self.bins
             out[np.arange(len(states))[:, None], idx] = 1.0
-        else:
-            out[:] = states
 
     def _actions(self, out: np.ndarray, actions: np.ndarray) -> None:
         """Write the action features of ``actions`` ((B,) ids or (B, A)) into ``out`` (B, A)."""

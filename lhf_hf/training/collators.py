@@ -63,7 +63,8 @@ class WindowCollator(ABC):
 
     @abstractmethod
     def labels(self, rows: np.ndarray) -> dict[str, torch.Tensor]:
-        """The objective's targets (and extra inputs) for windows of frame ``rows`` (B, L): L = the context or a band-attention sequence."""
+        """The objective's targets (and extra inputs) for items of frame ``rows`` (B, L), L = the
+        context (windows) or a band-attention sequence."""
 
 
 class ADCollator(WindowCollator):
