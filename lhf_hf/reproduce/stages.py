@@ -31,6 +31,7 @@ class Stage:
     label: str  # human-readable, for the progress display
     config: dict  # everything that determines the output, upstream hashes included
     fn: Callable[[Path], None]  # writes the output into the folder it is given
+    inputs: tuple[Stage, ...] = ()  # the stages whose folders it reads (run them first)
 
     @property
     def hash(self) -> str:
@@ -38,6 +39,9 @@ class Stage:
 
     def path(self, work: Path) -> Path:
         return Path(work) / self.kind / self.hash[:12]
+
+    def done(self, work: Path) -> bool:
+        return (self.path(work) / DONE_FILE).exists()
 
 
 class StageRunner:
@@ -54,7 +58,7 @@ class StageRunner:
         out = stage.path(self.work)
         self.done += 1
         head = f"[{self.done}/{self.total or '?'}] {stage.kind:<8} {stage.label}"
-        if (out / DONE_FILE).exists():
+        if stage.done(self.work):
             self.echo(f"{head}: cached ({out})")
             self.log.append({"stage": stage.label, "path": str(out), "cached": True})
             return out

@@ -1,0 +1,166 @@
+"""Independent stages side by side: ``lhf reproduce --jobs J`` runs up to J stages at once.
+
+A model of this size keeps two cores only partly busy: two trainings with one thread each finish
+1.3x sooner than the same two one after the other with two threads each (BENCHMARKS.md, "Training
+throughput").  So with ``jobs > 1`` every training and evaluation runs in a child process
+(``python -m lhf_hf.reproduce.worker``) with one torch thread, as soon as the stages it reads are
+done.  Collections (which use every core through their own worker processes) run alone, and they,
+derivations and filters (a second of numpy) run in this process: a child costs ~5 s of imports.
+Each child writes its output (progress bars included) to ``stage.log`` in its stage folder, and
+marks the stage done exactly as the in-process runner does, so the cache cannot tell the two apart.
+
+The thread count is not part of a stage's identity: one thread instead of two may change the float
+rounding of a trained model (not its seed, data or settings), as any machine with another core
+count would.  A failed stage stops new starts; the stages already running finish and are kept.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from .stages import DONE_FILE, Stage, StageRunner
+
+#: Kinds of stage that use every core by themselves (collection: its own worker processes).
+WHOLE_MACHINE = {"collect"}
+#: Kinds of stage run in this process (short, or alone anyway); the others get a child process.
+IN_PROCESS = {"collect", "derive", "filter"}
+LOG_FILE = "stage.log"
+#: Environment of a child: one thread for torch and the BLAS it calls.
+ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+def run_stages(
+    stages: Sequence[Stage],
+    runner: StageRunner,
+    jobs: int,
+    worker_command: Callable[[Stage], list[str]],
+    poll_s: float = 0.2,
+) -> None:
+    """Run ``stages`` (in dependency order) with ``runner``: in this process when ``jobs == 1``,
+    else up to ``jobs`` child processes at once (``worker_command(stage)`` starts one)."""
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if jobs == 1:
+        for stage in stages:
+            runner.run(stage)
+        return
+    work = runner.work
+    known = {s.hash for s in stages}
+    for s in stages:
+        missing = [i.label for i in s.inputs if i.hash not in known]
+        if missing:
+            raise ValueError(f"stage {s.label!r} reads {missing}, which are not in the plan")
+    pending = list(stages)
+    running: dict[subprocess.Popen, tuple[Stage, float, int, object]] = {}
+    finished: set[str] = set()
+    failed: list[str] = []
+    error: Exception | None = None  # of a stage run in this process
+    try:
+        while pending or running:
+            used = sum(cores for _, _, cores, _ in running.values())
+            for stage in list(pending):
+                if failed:
+                    break
+                if any(i.hash not in finished for i in stage.inputs):
+                    continue  # an input is still running (or waiting)
+                if stage.done(work):
+                    pending.remove(stage)
+                    runner.run(stage)  # reported as cached, nothing runs
+                    finished.add(stage.hash)
+                    continue
+                cores = jobs if stage.kind in WHOLE_MACHINE else 1
+                if used + cores > jobs:
+                    break  # first come, first served: a whole-machine stage is not starved
+                pending.remove(stage)
+                if stage.kind in IN_PROCESS:
+                    try:
+                        runner.run(stage)
+                    except Exception as exc:  # noqa: BLE001 (re-raised once the children end)
+                        failed.append(stage.label)
+                        error = exc
+                        runner.echo(f"[failed] {stage.kind:<8} {stage.label}: {exc}")
+                        break
+                    finished.add(stage.hash)
+                    continue
+                out = stage.path(work)
+                out.mkdir(parents=True, exist_ok=True)
+                log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
+                env = {**os.environ, **ONE_THREAD}
+                child = subprocess.Popen(
+                    worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
+                )
+                runner.done += 1
+                runner.echo(
+                    f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label} "
+                    f"... (process {child.pid}, 1 thread, log "
+                    f"{out / LOG_FILE})"
+                )
+                running[child] = (stage, time.perf_counter(), cores, log)
+                used += cores
+            if not running:
+                if pending and not failed:
+                    names = [s.label for s in pending]
+                    raise RuntimeError(f"stages {names} wait for inputs that never ran")
+                break
+            time.sleep(poll_s)
+            for child in [c for c in running if c.poll() is not None]:
+                stage, t0, _, log = running.pop(child)
+                log.close()
+                out = stage.path(work)
+                if child.returncode == 0 and (out / DONE_FILE).exists():
+                    wall = round(time.perf_counter() - t0, 1)
+                    finished.add(stage.hash)
+                    runner.echo(f"[done] {stage.kind:<8} {stage.label} in {wall} s")
+                    runner.log.append(
+                        {"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall}
+                    )
+                else:
+                    failed.append(stage.label)
+                    runner.echo(
+                        f"[failed] {stage.kind:<8} {stage.label} (exit {child.returncode}); "
+                        f"the end of {out / LOG_FILE}:\n{_tail(out / LOG_FILE)}"
+                    )
+                    if running:
+                        runner.echo(
+                            f"[lhf reproduce] no new stages; waiting for the {len(running)} "
+                            "running one(s) to finish (their results are kept)"
+                        )
+    except BaseException:
+        # Interrupted (Ctrl-C reaches the children too): let them stop, keep what they wrote
+        # (training resumes from its checkpoints on the next call).
+        for child in running:
+            try:
+                child.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                child.terminate()
+        raise
+    if error is not None:
+        raise error
+    if failed:
+        raise RuntimeError(
+            f"{len(failed)} stage(s) failed: {failed}; their logs are named above. Finished "
+            "stages are cached: fix the cause and run the same command again to resume."
+        )
+
+
+def _tail(path: Path, lines: int = 15) -> str:
+    try:
+        text = path.read_text(errors="replace").replace("\r", "\n")
+    except OSError as exc:
+        return f"(unreadable: {exc})"
+    kept = [ln for ln in text.splitlines() if ln.strip()][-lines:]
+    return "\n".join("    " + ln for ln in kept)
+
+
+def worker_command(
+    experiment: str, preset: str, runs: int, work: Path
+) -> Callable[[Stage], list[str]]:
+    """The command that runs one stage of this experiment in a child process."""
+    base = [sys.executable, "-m", "lhf_hf.reproduce.worker", str(experiment), preset]
+    base += ["--runs", str(runs), "--work", str(Path(work).resolve())]
+    return lambda stage: [*base, "--stage", stage.hash]

@@ -1,0 +1,147 @@
+"""lhf reproduce --jobs: stages side by side in child processes, in dependency order."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from lhf_hf.reproduce import reproduce
+from lhf_hf.reproduce.parallel import LOG_FILE, run_stages
+from lhf_hf.reproduce.stages import DONE_FILE, Stage, StageRunner
+
+# A stand-in stage process: records when it ran, then marks its stage done (or fails).
+CHILD = """
+import json, os, sys, time
+out, fail = sys.argv[1], sys.argv[2] == "1"
+t0 = time.time()
+time.sleep(0.3)
+print("working in", out, "threads", os.environ.get("OMP_NUM_THREADS"))
+if fail:
+    print("something broke"); sys.exit(3)
+json.dump({"start": t0, "end": time.time(), "threads": os.environ.get("OMP_NUM_THREADS"),
+           "pid": os.getpid()},
+          open(os.path.join(out, "times.json"), "w"))
+json.dump({}, open(os.path.join(out, "stage.json"), "w"))
+"""
+
+
+def _here(out: Path, fail: bool = False) -> None:
+    """An in-process stage (collect, filter): records when it ran."""
+    t0 = time.time()
+    time.sleep(0.3)
+    if fail:
+        raise OSError("disk full")
+    (out / "times.json").write_text(json.dumps({"start": t0, "end": time.time(), "pid": 0}))
+
+
+def _child_only(out: Path) -> None:
+    raise AssertionError("with jobs > 1, trainings and evaluations run in child processes")
+
+
+def _graph(fail_filter: bool = False):
+    """collect -> filter -> (train base, train lhf) -> one eval each; then a second collect."""
+    col = Stage("collect", "collect", {"i": 0}, _here)
+    fil = Stage("filter", "filter", {"i": 1}, lambda out: _here(out, fail_filter), (col,))
+    tb = Stage("train", "train base", {"i": 2}, _child_only, (col,))
+    tl = Stage("train", "train lhf", {"i": 3}, _child_only, (col, fil))
+    eb = Stage("evaluate", "eval base", {"i": 4}, _child_only, (tb,))
+    el = Stage("evaluate", "eval lhf", {"i": 5}, _child_only, (tl,))
+    col2 = Stage("collect", "collect 2", {"i": 6}, _here)
+    return [col, tb, fil, tl, eb, el, col2]  # a dependency order; the filter after a child
+
+
+def _command(work: Path, failing: set[str] = frozenset()):
+    return lambda s: [sys.executable, "-c", CHILD, str(s.path(work)), str(int(s.label in failing))]
+
+
+def _times(stages, work):
+    return {s.label: json.loads((s.path(work) / "times.json").read_text()) for s in stages}
+
+
+def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path):
+    stages = _graph()
+    lines: list[str] = []
+    runner = StageRunner(tmp_path, total=len(stages), echo=lines.append)
+    run_stages(stages, runner, jobs=2, worker_command=_command(tmp_path), poll_s=0.02)
+    t = _times(stages, tmp_path)
+    for s in stages:  # every input ended before the stage started
+        assert all(t[i.label]["end"] <= t[s.label]["start"] for i in s.inputs)
+    events = sorted([(v["start"], 1) for v in t.values()] + [(v["end"], -1) for v in t.values()])
+    level = peak = 0
+    for _, d in events:
+        level += d
+        peak = max(peak, level)
+    assert peak == 2  # two at once happened, never three
+    for c in ("collect", "collect 2"):  # a collection uses every core: nothing beside it
+        others = [v for k, v in t.items() if k != c]
+        assert all(v["end"] <= t[c]["start"] or v["start"] >= t[c]["end"] for v in others)
+    # collections and filters here; trainings and evaluations in children with one thread
+    assert {k for k, v in t.items() if v["pid"] == 0} == {"collect", "filter", "collect 2"}
+    assert {v["threads"] for v in t.values() if v["pid"]} == {"1"}
+    assert [e["stage"] for e in runner.log] and all(not e["cached"] for e in runner.log)
+    assert (stages[1].path(tmp_path) / LOG_FILE).read_text().startswith("working in")
+    # the cache cannot tell: a sequential rerun finds every stage done
+    again = StageRunner(tmp_path, total=len(stages), echo=lines.append)
+    run_stages(stages, again, jobs=1, worker_command=None)
+    assert all(e["cached"] for e in again.log)
+
+
+def test_a_failed_stage_stops_new_starts_and_names_its_log(tmp_path):
+    stages = _graph()
+    lines: list[str] = []
+    runner = StageRunner(tmp_path, total=len(stages), echo=lines.append)
+    cmd = _command(tmp_path, failing={"train base"})
+    with pytest.raises(RuntimeError, match=r"1 stage\(s\) failed: \['train base'\].*run the same"):
+        run_stages(stages, runner, jobs=2, worker_command=cmd, poll_s=0.02)
+    text = "\n".join(lines)
+    assert "[failed] train    train base (exit 3)" in text and "something broke" in text
+    done = {s.label for s in stages if (s.path(tmp_path) / DONE_FILE).exists()}
+    # what ran beside it finished and is kept; nothing that depends on it started
+    assert {"collect", "filter", "train lhf"} <= done and "eval base" not in done
+    assert not stages[4].path(tmp_path).exists()  # eval base
+
+
+def test_a_stage_failing_in_this_process_raises_its_error_after_the_children_end(tmp_path):
+    stages = _graph(fail_filter=True)
+    runner = StageRunner(tmp_path, total=len(stages), echo=lambda s: None)
+    with pytest.raises(OSError, match="disk full"):
+        run_stages(stages, runner, jobs=2, worker_command=_command(tmp_path), poll_s=0.02)
+    # train base (started beside the filter) finished and is kept; train lhf never started
+    assert (stages[1].path(tmp_path) / DONE_FILE).exists()
+    assert not stages[3].path(tmp_path).exists()
+
+
+def test_bad_plans_and_jobs_are_errors(tmp_path):
+    stages = _graph()
+    runner = StageRunner(tmp_path)
+    with pytest.raises(ValueError, match="jobs must be >= 1"):
+        run_stages(stages, runner, jobs=0, worker_command=None)
+    with pytest.raises(ValueError, match=r"reads \['collect'\], which are not in the plan"):
+        run_stages(stages[1:], runner, jobs=2, worker_command=_command(tmp_path))
+    from lhf_hf.cli.main import main
+
+    assert main(["reproduce", "darkroom-main", "--jobs", "0"]) == 1
+
+
+@pytest.mark.slow
+def test_reproduce_with_two_jobs_matches_the_plan_and_caches(tmp_path):
+    from tests.reproduce.test_reproduce import TINY, _spec
+
+    spec = _spec(tmp_path, TINY)
+    work, out = tmp_path / "work", tmp_path / "out"
+    lines: list[str] = []
+    reproduce(spec, "quick", out=out, work=work, echo=lines.append, jobs=2)
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["jobs"] == 2 and len(summary["stages"]) == 12
+    assert not any(s["cached"] for s in summary["stages"])
+    for kind in ("train", "evaluate"):
+        assert len(list(work.glob(f"{kind}/*/{LOG_FILE}"))) == 4
+    evals = [json.loads(p.read_text()) for p in work.glob("evaluate/*/eval/eval_results.json")]
+    assert sorted(r["split_seed"] for r in evals) == [0, 0, 1, 1]
+    # in this process, the same plan: all cached
+    reproduce(spec, "quick", out=out, work=work, echo=lines.append)
+    assert all(s["cached"] for s in json.loads((out / "results.json").read_text())["stages"])
