@@ -26,5 +26,10 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.reproduce import reproduce  # deferred: heavy (every stage's libraries)
 
     o = ReproduceOptions(**values(args, args.fields))
+    if o.estimate:
+        from lhf_hf.reproduce import estimate_experiment  # deferred: heavy, as above
+
+        print(estimate_experiment(o.experiment, o.preset, o.runs, o.work, o.jobs))
+        return 0
     reproduce(o.experiment, o.preset, o.runs, o.out, o.work, jobs=o.jobs)
     return 0

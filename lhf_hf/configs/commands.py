@@ -113,6 +113,8 @@ class ReproduceOptions:
     work: the stage cache (datasets, checkpoints, evaluations), reused by later runs.
     jobs: stages run at once, each in its own process with one thread (2 on 2 cores: trainings
         finish 1.3x sooner); 1 = one after the other in this process.
+    estimate: run nothing; print the stages, which are cached, and the estimated time of the rest
+        on this machine (from the rates that finished stages recorded, or the shipped reference).
     """
 
     experiment: str
@@ -121,6 +123,7 @@ class ReproduceOptions:
     out: str | None = None
     work: str = "runs/reproduce"
     jobs: int = 1
+    estimate: bool = False
 
     def __post_init__(self) -> None:
         if self.jobs < 1:

@@ -26,6 +26,7 @@ from lhf_hf.utils.io import write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
+from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
 from .experiment import Experiment, load_experiment
 from .parallel import run_stages, worker_command
 from .report import render_report
@@ -60,7 +61,10 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                 collect(CollectConfig.from_dict(cfg.to_dict()), data, resume=data.exists())
 
             label = f"{tag}: {collect_cfg.histories} histories x {collect_cfg.steps}"
-            col = Stage("collect", label, collect_cfg.identity(), do_collect)
+            col = Stage(
+                "collect", label, collect_cfg.identity(), do_collect, cost=collect_cost(collect_cfg)
+            )
+            transitions = col.cost.units
             stages.append(col)
             data_stage = col
             if exp.half:
@@ -69,8 +73,14 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                     derive_half(src.path(work) / "data", out / "data", overwrite=True)
 
                 data_stage = Stage(
-                    "derive", f"{tag}: first half", {"src": col.hash}, do_half, inputs=(col,)
+                    "derive",
+                    f"{tag}: first half",
+                    {"src": col.hash},
+                    do_half,
+                    inputs=(col,),
+                    cost=data_cost("derive", transitions),
                 )
+                transitions /= 2
                 stages.append(data_stage)
             arms = []
             for arm, filter_cfg in exp.filter_arms(run):
@@ -79,13 +89,20 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                     run_filter(src.path(work) / "data", out / "selection", cfg, overwrite=True)
 
                 fc = {"src": data_stage.hash, **filter_cfg.to_dict()}
-                sel = Stage("filter", f"{tag}: {arm}", fc, do_filter, (data_stage,))
+                sel = Stage(
+                    "filter",
+                    f"{tag}: {arm}",
+                    fc,
+                    do_filter,
+                    (data_stage,),
+                    data_cost("filter", transitions),
+                )
                 stages.append(sel)
                 arms.append((arm, sel))
             for obj in exp.objectives:
                 for arm, sel in [("baseline", None), *arms]:
-                    what = exp.train_config(obj, run, dataset="", selection=None, out="")
-                    tc = {k: v for k, v in what.to_dict().items() if k not in _TRAIN_PLACES}
+                    train_cfg = exp.train_config(obj, run, dataset="", selection=None, out="")
+                    tc = {k: v for k, v in train_cfg.to_dict().items() if k not in _TRAIN_PLACES}
                     tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
@@ -109,11 +126,13 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                         tc,
                         do_train,
                         (data_stage,) if sel is None else (data_stage, sel),
+                        train_cost(env, train_cfg),
                     )
                     stages.append(tr)
                     for plan in exp.dicp_plan_modes() if obj == "dicp" else (False,):
-                        what = exp.eval_config(run, model="", out="", plan=plan).to_dict()
-                        ec = {**{k: v for k, v in what.items() if k != "out"}, "model": tr.hash}
+                        eval_cfg = exp.eval_config(run, model="", out="", plan=plan)
+                        ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
+                        ec["model"] = tr.hash
 
                         def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:
                             model = str(tr.path(work) / "model")
@@ -122,7 +141,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                             )
 
                         what = f"{obj.upper()}{' + plan' if plan else ''} {arm}"
-                        ev = Stage("evaluate", f"{tag}: {what}", ec, do_eval, (tr,))
+                        cost = eval_cost(env, obj, train_cfg, eval_cfg, split_seed=run)
+                        ev = Stage("evaluate", f"{tag}: {what}", ec, do_eval, (tr,), cost)
                         stages.append(ev)
                         evals.setdefault((env, arm, obj), []).append(ev)
     return stages, evals
@@ -158,6 +178,26 @@ def reproduce(
     with output_folder(out, "report", overwrite=True, inputs=[work], legacy=REPORT_FILES):
         command = worker_command(name, preset, exp.runs, work)
         return _run(exp, stages, evals, work, out, echo, jobs, command)
+
+
+def estimate_experiment(
+    name: str,
+    preset: str = "quick",
+    runs: int | None = None,
+    work: str | Path = "runs/reproduce",
+    jobs: int = 1,
+) -> str:
+    """``lhf reproduce ... --estimate``: the stages, which are cached, and the time the rest takes
+    on this machine (``estimate.py``), as text; runs nothing."""
+    exp = load_experiment(name, preset, runs)
+    stages, _ = plan_stages(exp, Path(work))
+    est = estimate(stages, work, jobs)
+    head = (
+        f"[lhf reproduce --estimate] {exp.name}, preset {preset}: {exp.runs} run(s) x "
+        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
+        f"work folder {work}"
+    )
+    return render(est, head)
 
 
 #: Files of a report folder written before output markers existed (``utils.outputs``).

@@ -9,6 +9,7 @@ training resume from their own markers/checkpoints).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import time
@@ -16,6 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
+from lhf_hf.collection.backend_verdict import cpu_model
 from lhf_hf.utils.io import write_json_atomic
 
 DONE_FILE = "stage.json"
@@ -25,6 +29,14 @@ def config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
 
 
+@dataclass(frozen=True)
+class Cost:
+    """What a stage's time scales with: ``units`` of work of one ``key`` (``estimate.py``)."""
+
+    key: str
+    units: float
+
+
 @dataclass
 class Stage:
     kind: str  # collect / derive / filter / train / evaluate
@@ -32,6 +44,7 @@ class Stage:
     config: dict  # everything that determines the output, upstream hashes included
     fn: Callable[[Path], None]  # writes the output into the folder it is given
     inputs: tuple[Stage, ...] = ()  # the stages whose folders it reads (run them first)
+    cost: Cost | None = None  # for ``--estimate``; recorded with the wall time when done
 
     @property
     def hash(self) -> str:
@@ -67,10 +80,14 @@ class StageRunner:
         out.mkdir(parents=True, exist_ok=True)
         stage.fn(out)
         wall = round(time.perf_counter() - t0, 1)
-        write_json_atomic(
-            {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall},
-            out / DONE_FILE,
-        )
+        done = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
+        if stage.cost is not None:  # a measured rate for later estimates
+            done.update(
+                cost=dataclasses.asdict(stage.cost),
+                cpu=cpu_model(),
+                threads=torch.get_num_threads(),
+            )
+        write_json_atomic(done, out / DONE_FILE)
         self.echo(f"{head}: done in {wall} s")
         self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})
         return out

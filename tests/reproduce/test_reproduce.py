@@ -9,8 +9,15 @@ import numpy as np
 import pytest
 import yaml
 
+from lhf_hf.cli.main import main
 from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
-from lhf_hf.reproduce import experiment_names, load_experiment, plan_stages, reproduce
+from lhf_hf.reproduce import (
+    estimate_experiment,
+    experiment_names,
+    load_experiment,
+    plan_stages,
+    reproduce,
+)
 from lhf_hf.reproduce.report import verdict
 
 TINY = {
@@ -224,6 +231,14 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
     # Changing the training budget re-runs training and evaluation only.
     changed = json.loads(json.dumps(TINY))
     changed["presets"]["quick"]["train"]["max_steps"] = 6
+    # every finished stage recorded what it cost, so the estimate times the 8 stages to re-run
+    done = json.loads(next(work.glob("train/*/stage.json")).read_text())
+    assert done["cost"]["units"] == 4 * 4 * 80 * 1  # steps x batch x context 80 x 1 token (AD)
+    assert done["cost"]["key"] == "train|darkroom|ad|tiny|window" and done["threads"] >= 1
+    text = estimate_experiment(_spec(tmp_path, changed), "quick", work=work)
+    assert "8 of 12 stages to run" in text and "no rate" not in text
+    assert text.count("cached") == 4 and text.count("(this machine") == 8
+    assert main(["reproduce", _spec(tmp_path, changed), "--work", str(work), "--estimate"]) == 0
     reproduce(_spec(tmp_path, changed), "quick", out=out, work=work, echo=lines.append)
     third = json.loads((out / "results.json").read_text())
     kind = {True: set(), False: set()}
@@ -234,8 +249,6 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
 
 
 def test_cli_errors(capsys):
-    from lhf_hf.cli.main import main
-
     assert main(["reproduce", "no-such-experiment"]) == 1
     assert "unknown experiment 'no-such-experiment'" in capsys.readouterr().err
 

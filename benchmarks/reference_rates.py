@@ -1,0 +1,56 @@
+"""The reference rates of ``lhf reproduce --estimate``, from finished stages on this machine.
+
+    python benchmarks/reference_rates.py WORK [WORK ...] [--out lhf_hf/reproduce/rates.json]
+
+Reads every ``stage.json`` under the given stage caches that recorded its cost (stages finished
+by a version with ``--estimate``), keeps those of this machine's CPU model, and writes the mean
+seconds per unit of each (key, torch threads) with the number of stages behind it.  The shipped
+table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind) and the
+README's main job (``darkroom-noisy --preset quick`` with ``--jobs`` 1 and 2); BENCHMARKS.md names
+the commands.  Short stages overstate the rate by their start-up cost (loading data, building the
+model, saving), so estimates from this table err long.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
+from lhf_hf.reproduce.estimate import REFERENCE, measured_stages, rate_table
+from lhf_hf.utils.io import write_json_atomic
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("work", nargs="+", help="stage caches (lhf reproduce --work)")
+    p.add_argument("--out", default=str(REFERENCE))
+    a = p.parse_args()
+    cpu = cpu_model()
+    records = [r for w in a.work for r in measured_stages(w) if r.get("cpu") == cpu]
+    if not records:
+        raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
+    table = rate_table(records)
+    rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
+    write_json_atomic(
+        {
+            "cpu": cpu,
+            "isa": instruction_set(),
+            "machine": f"{platform.machine()}, 2 cores",
+            "date": time.strftime("%Y-%m-%d"),
+            "command": "python benchmarks/reference_rates.py " + " ".join(a.work),
+            "rates": rates,
+        },
+        a.out,
+    )
+    for r in rates:
+        print(
+            f"{r['key']:<50} {r['threads']} thread(s) {r['seconds_per_unit']:.3e} s/unit "
+            f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stages)"
+        )
+    print(f"{len(rates)} rates from {len(records)} stages -> {a.out}")
+
+
+if __name__ == "__main__":
+    main()

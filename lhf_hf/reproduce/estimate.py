@@ -1,0 +1,295 @@
+"""``lhf reproduce EXPERIMENT --preset P --estimate``: what would run, what is cached, how long.
+
+Every stage carries a ``Cost``: what its time scales with (``units``) and the kind of work a
+seconds-per-unit rate holds for (``key``):
+
+- collect: transitions (tasks x histories x steps); key: env, collector, algo.
+- derive / filter: transitions of the dataset read; key: the kind.
+- train: tokens (max_steps x batch x tokens per item); key: objective, model preset, attention.
+- evaluate: env-steps (episodes x tasks x horizon; with planning, the planned ones); key: env,
+  objective, preset, plan, context.
+
+A finished stage records its cost, its wall time, the CPU model and its torch threads in
+``stage.json``, so every reproduction measures rates for the next estimate; the time of the part
+that scales (a training's steps, an evaluation's rollout) is read from the stage's own outputs and
+the rest is a per-stage start-up cost (``work_seconds``): estimate = start-up + rate x units.  A stage's rate is,
+in order: the mean over finished stages with its key on this CPU model at the same thread count
+(``this machine``), the same at the other thread count converted by the measured factor below, the
+reference table shipped in ``rates.json`` (measured on the machine it names), or none (its time is
+then missing from the total, which says so).  Rates are per unit, so a longer training or a longer
+collection is predicted linearly (attention's cost grows with the context, and for the batched
+collector the chunk size matters, which is why the env is in the keys).
+
+With ``jobs > 1`` the wall time is a simulation of ``parallel.run_stages``'s schedule on these
+durations (one thread per training / evaluation).
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from lhf_hf.collection.backend_verdict import cpu_model
+from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
+from lhf_hf.envs import get_spec
+from lhf_hf.evaluation.evaluate import resolve_tasks
+from lhf_hf.training.trainer import model_config_for, sequence_length
+
+from .parallel import IN_PROCESS, WHOLE_MACHINE
+from .stages import DONE_FILE, Cost, Stage
+
+#: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
+#: side by side (190-198 s vs 124-126 s, BENCHMARKS.md "Reproduce: stages side by side", Intel).
+THREAD_FACTOR = 1.53
+REFERENCE = Path(__file__).resolve().parent / "rates.json"
+#: A child process's imports before its stage starts (``--jobs`` > 1), which the child's own
+#: ``stage.json`` cannot see: 5-6 s per stage (BENCHMARKS.md, "Reproduce: stages side by side").
+CHILD_START_S = 5.0
+
+
+@dataclass(frozen=True)
+class Rate:
+    seconds_per_unit: float  # of the part that scales with the units
+    overhead_s: float  # start-up seconds of one stage
+    basis: str  # where it comes from, in words
+    stages: int  # how many measured stages it averages
+
+    def seconds(self, units: float) -> float:
+        return self.overhead_s + self.seconds_per_unit * units
+
+
+# ---- what each stage's time scales with
+def collect_cost(cfg: CollectConfig) -> Cost:
+    key = f"collect|{cfg.env_id}|{cfg.collector}|{cfg.algo}"
+    return Cost(key, float(len(cfg.tasks) * cfg.histories * cfg.steps))
+
+
+def data_cost(kind: str, transitions: float) -> Cost:
+    return Cost(kind, transitions)
+
+
+def train_cost(env: str, cfg: TrainConfig) -> Cost:
+    config = model_config_for(get_spec(env), cfg, has_optimal=True)
+    tokens = sequence_length(cfg, config) * config.tokens_per_transition
+    key = f"train|{env}|{cfg.objective}|{cfg.preset}|{cfg.attention}"
+    return Cost(key, float(cfg.max_steps * cfg.batch_size * tokens))
+
+
+def eval_cost(
+    env: str, objective: str, train: TrainConfig, cfg: EvalConfig, split_seed: int
+) -> Cost:
+    """Env-steps; with planning, the planned ones: the planner starts once the context holds K
+    transitions (``rollout``), and a planned step costs tens of model-free ones, so the first K
+    steps of each task are left out (Meta-World plans only the second half of each episode after
+    that, so its units count twice the planned steps: a rate, not a count, is what is measured)."""
+    spec = get_spec(env)
+    tasks = len(resolve_tasks(env, cfg.tasks, split_seed))
+    steps = cfg.episodes * spec.horizon
+    if cfg.plan:
+        steps = max(steps - (train.context_length or spec.context_length), 0)
+    plan = "plan" if cfg.plan else "no plan"
+    context = (
+        cfg.context
+        if cfg.context != "auto"
+        else ("cache" if train.attention == "band" else "window")
+    )
+    key = f"evaluate|{env}|{objective}|{train.preset}|{plan}|{context}"
+    return Cost(key, float(steps * tasks))
+
+
+# ---- rates and the estimate
+def measured_stages(work: str | Path) -> list[dict]:
+    """Every finished stage under ``work`` that recorded its cost (older ones did not), with
+    ``work_s``: the seconds of the part that scales with the units (``work_seconds``)."""
+    out = []
+    for path in sorted(Path(work).glob(f"*/*/{DONE_FILE}")):
+        try:
+            rec = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue  # a damaged mark: that stage will run again anyway
+        cost = rec.get("cost")
+        if isinstance(cost, dict) and cost.get("units", 0) > 0 and rec.get("wall_s", 0) > 0:
+            work_s = work_seconds(rec.get("kind", ""), path.parent)
+            rec["work_s"] = min(work_s, rec["wall_s"]) if work_s else rec["wall_s"]
+            out.append(rec)
+    return out
+
+
+def work_seconds(kind: str, folder: Path) -> float | None:
+    """The seconds a stage spent on the work its units count, from its own outputs: a training's
+    ``train_runtime`` (Trainer), an evaluation's rollout ``wall_s``.  The rest of the stage's wall
+    time (imports, loading the data, building and saving the model) is a start-up cost that does
+    not grow with the units: a 40-step calibration training or a one-episode evaluation is mostly
+    start-up, so the two are told apart."""
+    try:
+        if kind == "train":
+            log = json.loads((folder / "model" / "training_log.json").read_text())
+            runtimes = [e["train_runtime"] for e in log if "train_runtime" in e]
+            return float(runtimes[-1]) if runtimes else None
+        if kind == "evaluate":
+            return float(json.loads((folder / "eval" / "eval_results.json").read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return None
+
+
+def rate_table(records: Sequence[dict]) -> dict[tuple[str, str, int], dict]:
+    """``(key, cpu, threads) -> {"seconds_per_unit", "overhead_s", "stages"}``: per group, the
+    mean rate of the scaling part and the mean start-up seconds."""
+    groups: dict[tuple[str, str, int], list[dict]] = {}
+    for r in records:
+        k = (r["cost"]["key"], r.get("cpu", "?"), int(r.get("threads", 0)))
+        groups.setdefault(k, []).append(r)
+    return {
+        k: {
+            "seconds_per_unit": sum(r["work_s"] / r["cost"]["units"] for r in v) / len(v),
+            "overhead_s": sum(r["wall_s"] - r["work_s"] for r in v) / len(v),
+            "stages": len(v),
+        }
+        for k, v in groups.items()
+    }
+
+
+def load_reference(path: Path = REFERENCE) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {"cpu": "?", "rates": []}
+
+
+def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) -> Rate | None:
+    """The rate of ``key`` at ``threads`` torch threads (see the module's order of sources).
+    Collections, derivations and filters do not depend on torch's threads: any count matches."""
+    ref_cpu = reference.get("cpu", "?")
+    sources = (
+        ("this machine", {k: v for k, v in table.items() if k[1] == cpu}),
+        (
+            f"reference ({ref_cpu})",
+            {(r["key"], ref_cpu, r["threads"]): r for r in reference["rates"]},
+        ),
+    )
+    for source, rows in sources:
+        found = [(t, v) for (k, _, t), v in rows.items() if k == key]
+        if not found:
+            continue
+        same = [v for t, v in found if t == threads or not _threaded(key)]
+        if same:
+            v = same[0]
+            return Rate(v["seconds_per_unit"], v.get("overhead_s", 0.0), source, v["stages"])
+        t, v = found[0]
+        factor = THREAD_FACTOR if threads < t else 1 / THREAD_FACTOR
+        basis = f"{source}, measured at {t} thread(s) x {factor:.2f}"
+        spu = v["seconds_per_unit"] * factor
+        return Rate(spu, v.get("overhead_s", 0.0), basis, v["stages"])
+    return None
+
+
+def _threaded(key: str) -> bool:
+    return key.startswith(("train", "evaluate"))
+
+
+def estimate(
+    stages: Sequence[Stage], work: str | Path, jobs: int = 1, reference: dict | None = None
+) -> dict:
+    """Per stage: cached or not, its estimated seconds and the rate's basis; and the totals."""
+    cpu, threads_here = cpu_model(), torch.get_num_threads()
+    table = rate_table(measured_stages(work))
+    reference = load_reference() if reference is None else reference
+    rows, missing = [], []
+    for s in stages:
+        row = {"kind": s.kind, "label": s.label, "cached": s.done(Path(work)), "seconds": None}
+        if not row["cached"] and s.cost is not None:
+            threads = 1 if jobs > 1 and _threaded(s.cost.key) else threads_here
+            rate = find_rate(s.cost.key, threads, table, cpu, reference)
+            if rate is None:
+                row["basis"] = f"no measured rate for {s.cost.key}"
+                missing.append(s.cost.key)
+            else:
+                row["seconds"] = rate.seconds(s.cost.units)
+                if jobs > 1 and s.kind not in IN_PROCESS:
+                    row["seconds"] += CHILD_START_S
+                row["basis"] = f"{rate.basis}, {rate.stages} stage(s)"
+        rows.append(row)
+    durations = {s.hash: (r["seconds"] or 0.0) for s, r in zip(stages, rows, strict=True)}
+    done = {s.hash for s, r in zip(stages, rows, strict=True) if r["cached"]}
+    return {
+        "cpu": cpu,
+        "jobs": jobs,
+        "stages": rows,
+        "to_run": sum(not r["cached"] for r in rows),
+        "wall_s": schedule(stages, durations, done, jobs),
+        "stage_s": sum(durations.values()),
+        "missing": sorted(set(missing)),
+    }
+
+
+def schedule(
+    stages: Sequence[Stage], seconds: dict[str, float], done: set[str], jobs: int
+) -> float:
+    """Wall time of ``parallel.run_stages`` (or the sequential runner) on these durations: stages
+    start in plan order once their inputs are done, at most ``jobs`` at once, collections alone,
+    derivations and filters in the scheduling process (nothing starts while they run)."""
+    if jobs == 1:
+        return sum(seconds[s.hash] for s in stages if s.hash not in done)
+    now, finished = 0.0, set(done)
+    pending = [s for s in stages if s.hash not in done]
+    running: list[tuple[float, str, int]] = []  # (end, hash, cores)
+    while pending or running:
+        used = sum(c for _, _, c in running)
+        for s in list(pending):
+            if any(i.hash not in finished for i in s.inputs):
+                continue
+            cores = jobs if s.kind in WHOLE_MACHINE else 1
+            if used + cores > jobs:
+                break
+            pending.remove(s)
+            if s.kind in IN_PROCESS:
+                now += seconds[s.hash]  # blocks the scheduler
+                finished.add(s.hash)
+                continue
+            heapq.heappush(running, (now + seconds[s.hash], s.hash, cores))
+            used += cores
+        if not running:
+            if pending:  # inputs outside the plan: nothing more can start
+                break
+            continue
+        end, h, _ = heapq.heappop(running)
+        now = max(now, end)
+        finished.add(h)
+    return now
+
+
+def render(est: dict, header: str) -> str:
+    lines = [header, ""]
+    n = len(est["stages"])
+    for i, r in enumerate(est["stages"], 1):
+        if r["cached"]:
+            what = "cached"
+        elif r["seconds"] is None:
+            what = f"to run, ? ({r['basis']})"
+        else:
+            what = f"to run, ~{duration(r['seconds'])} ({r['basis']})"
+        lines.append(f"[{i}/{n}] {r['kind']:<8} {r['label']}: {what}")
+    total = f"~{duration(est['wall_s'])} wall with --jobs {est['jobs']}"
+    if est["jobs"] > 1:
+        total += f" ({duration(est['stage_s'])} of stage time)"
+    missing = est["missing"]
+    if missing:
+        kinds = missing[0] if len(missing) == 1 else f"{len(missing)} kinds of stage"
+        total = (
+            f"at least {total}: no rate is known for {kinds} (marked '?'); every finished stage "
+            "records its rate, so a smaller preset run first makes the estimate complete"
+        )
+    lines += ["", f"{est['to_run']} of {n} stages to run on {est['cpu']}: {total}"]
+    return "\n".join(lines)
+
+
+def duration(seconds: float) -> str:
+    s = int(round(seconds))
+    if s < 90:
+        return f"{s} s"
+    if s < 5400:
+        return f"{s / 60:.1f} min"
+    return f"{s / 3600:.1f} h"

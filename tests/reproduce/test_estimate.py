@@ -1,0 +1,160 @@
+"""lhf reproduce --estimate: rates from finished stages, the reference table, the schedule."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lhf_hf.collection.backend_verdict import cpu_model
+from lhf_hf.reproduce.estimate import (
+    THREAD_FACTOR,
+    estimate,
+    find_rate,
+    measured_stages,
+    rate_table,
+    render,
+    schedule,
+)
+from lhf_hf.reproduce.stages import DONE_FILE, Cost, Stage
+
+
+def _noop(out):
+    pass
+
+
+def _graph():
+    col = Stage("collect", "collect", {"i": 0}, _noop, cost=Cost("collect|x", 1000))
+    tb = Stage("train", "train base", {"i": 1}, _noop, (col,), Cost("train|x", 50))
+    fil = Stage("filter", "filter", {"i": 2}, _noop, (col,), Cost("filter", 1000))
+    tl = Stage("train", "train lhf", {"i": 3}, _noop, (col, fil), Cost("train|x", 50))
+    eb = Stage("evaluate", "eval base", {"i": 4}, _noop, (tb,), Cost("evaluate|x", 10))
+    el = Stage("evaluate", "eval lhf", {"i": 5}, _noop, (tl,), Cost("evaluate|x", 10))
+    col2 = Stage("collect", "collect 2", {"i": 6}, _noop, cost=Cost("collect|x", 1000))
+    return [col, tb, fil, tl, eb, el, col2]
+
+
+SECONDS = [10, 100, 1, 100, 5, 5, 10]
+
+
+def test_schedule_by_hand():
+    stages = _graph()
+    d = {s.hash: t for s, t in zip(stages, SECONDS, strict=True)}
+    assert schedule(stages, d, set(), jobs=1) == 231
+    # jobs 2: collect alone (0-10); train base from 10; the filter here (10-11); train lhf from
+    # 11; eval base 110-115, eval lhf 111-116; the second collection waits for both: 116-126
+    assert schedule(stages, d, set(), jobs=2) == 126
+    # cached stages take no time and release their dependants at once
+    assert schedule(stages, d, {stages[0].hash, stages[2].hash}, jobs=2) == 100 + 5 + 10
+    assert schedule(stages, d, {s.hash for s in stages}, jobs=2) == 0
+
+
+def _record(work, stage, wall, threads, cpu):
+    out = stage.path(work)
+    out.mkdir(parents=True)
+    rec = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
+    rec.update(cost={"key": stage.cost.key, "units": stage.cost.units}, cpu=cpu, threads=threads)
+    (out / DONE_FILE).write_text(json.dumps(rec))
+
+
+def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
+    here = cpu_model()
+    a = Stage("train", "a", {"i": "a"}, _noop, cost=Cost("train|x", 100))
+    b = Stage("train", "b", {"i": "b"}, _noop, cost=Cost("train|x", 300))
+    c = Stage("collect", "c", {"i": "c"}, _noop, cost=Cost("collect|x", 1000))
+    other = Stage("train", "o", {"i": "o"}, _noop, cost=Cost("train|x", 100))
+    _record(tmp_path, a, 20.0, 2, here)  # 0.2 s per unit
+    _record(tmp_path, b, 120.0, 2, here)  # 0.4 s per unit
+    _record(tmp_path, c, 5.0, 2, here)
+    _record(tmp_path, other, 999.0, 2, "another CPU")  # never used for this machine
+    old = tmp_path / "train" / "old"
+    old.mkdir()
+    (old / DONE_FILE).write_text(json.dumps({"kind": "train", "wall_s": 3}))  # no cost: skipped
+    records = measured_stages(tmp_path)
+    assert len(records) == 4
+    table = rate_table(records)
+    assert table[("train|x", here, 2)] == {
+        "seconds_per_unit": pytest.approx(0.3),
+        "overhead_s": 0.0,  # no training log to tell the steps' time from the start-up
+        "stages": 2,
+    }
+    ref = {"cpu": "Reference CPU", "rates": [{"key": "evaluate|x", "threads": 2,
+                                               "seconds_per_unit": 0.5, "stages": 3}]}  # fmt: skip
+    r = find_rate("train|x", 2, table, here, ref)
+    assert r.seconds_per_unit == pytest.approx(0.3) and r.basis == "this machine"
+    # one thread (--jobs 2): the measured 2-thread rate times the side-by-side factor
+    r1 = find_rate("train|x", 1, table, here, ref)
+    assert r1.seconds_per_unit == pytest.approx(0.3 * THREAD_FACTOR)
+    assert "measured at 2 thread(s)" in r1.basis
+    # a collection does not depend on torch's threads
+    assert find_rate("collect|x", 1, table, here, ref).seconds_per_unit == pytest.approx(0.005)
+    # not measured here: the reference; not anywhere: None
+    rr = find_rate("evaluate|x", 2, table, here, ref)
+    assert rr.seconds_per_unit == 0.5 and rr.basis == "reference (Reference CPU)"
+    assert find_rate("train|never", 2, table, here, ref) is None
+
+
+def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path):
+    stages = _graph()
+    _record(tmp_path, stages[0], 10.0, 2, cpu_model())  # collect: cached, and a rate
+    ref = {"cpu": "Ref", "rates": [{"key": "train|x", "threads": 2, "seconds_per_unit": 2.0,
+                                    "stages": 1}]}  # fmt: skip
+    est = estimate(stages, tmp_path, jobs=1, reference=ref)
+    rows = {r["label"]: r for r in est["stages"]}
+    assert rows["collect"]["cached"] and rows["collect"]["seconds"] is None
+    assert rows["collect 2"]["seconds"] == pytest.approx(10.0)  # same key, 1000 units
+    assert rows["train base"]["seconds"] == pytest.approx(100.0)  # 50 units x 2.0 (reference)
+    assert est["to_run"] == 6 and est["missing"] == ["evaluate|x", "filter"]
+    assert est["wall_s"] == pytest.approx(210.0)
+    text = render(est, "head")
+    assert "[1/7] collect  collect: cached" in text
+    assert "~1.7 min (reference (Ref), 1 stage(s))" in text
+    assert "6 of 7 stages to run" in text
+    assert "at least ~3.5 min wall with --jobs 1: no rate is known for 2 kinds of stage" in text
+
+
+def test_start_up_time_is_told_apart_from_the_work_that_scales(tmp_path):
+    here = cpu_model()
+    t = Stage("train", "t", {"i": "t"}, _noop, cost=Cost("train|x", 100))
+    e = Stage("evaluate", "e", {"i": "e"}, _noop, cost=Cost("evaluate|x", 400))
+    _record(tmp_path, t, 30.0, 1, here)  # 30 s in all, of which the Trainer's steps took 20 s
+    (t.path(tmp_path) / "model").mkdir()
+    log = [{"loss": 1.0, "step": 10}, {"train_runtime": 20.0, "step": 40}]
+    (t.path(tmp_path) / "model" / "training_log.json").write_text(json.dumps(log))
+    _record(tmp_path, e, 6.0, 1, here)  # one short episode: 5.5 of the 6 s are start-up
+    (e.path(tmp_path) / "eval").mkdir()
+    (e.path(tmp_path) / "eval" / "eval_results.json").write_text(json.dumps({"wall_s": 0.5}))
+    table = rate_table(measured_stages(tmp_path))
+    assert table[("train|x", here, 1)]["seconds_per_unit"] == pytest.approx(0.2)
+    assert table[("train|x", here, 1)]["overhead_s"] == pytest.approx(10.0)
+    r = find_rate("evaluate|x", 1, table, here, {"rates": []})
+    assert (r.overhead_s, r.seconds_per_unit) == (pytest.approx(5.5), pytest.approx(0.5 / 400))
+    # a 100-episode evaluation is not 100 x a one-episode stage: 5.5 + 100 x 0.5
+    assert r.seconds(400 * 100) == pytest.approx(55.5)
+    # a thread conversion scales the work, not the start-up
+    r2 = find_rate("train|x", 2, table, here, {"rates": []})
+    assert r2.seconds(100) == pytest.approx(10.0 + 20.0 / THREAD_FACTOR)
+
+
+def test_costs_by_hand():
+    from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
+    from lhf_hf.reproduce.estimate import collect_cost, eval_cost, train_cost
+
+    c = collect_cost(
+        CollectConfig(env_id="darkroom", tasks="train", histories=20, collector="batched")
+    )
+    assert c == Cost("collect|darkroom|batched|ppo", 73 * 20 * 1000)
+    tr = TrainConfig(dataset="-", out="-", objective="dicp", preset="paper", max_steps=100)
+    # 100 steps x batch 64 (default) x context 80 x 2 tokens per transition (DICP)
+    assert train_cost("darkroom", tr) == Cost("train|darkroom|dicp|paper|window", 100 * 64 * 160)
+    ev = EvalConfig(model="-", out="-", episodes=10)
+    assert eval_cost("darkroom", "dicp", tr, ev, 0) == Cost(
+        "evaluate|darkroom|dicp|paper|no plan|window", 8 * 10 * 20
+    )
+    # planned: the steps after the context (K = 80) is full, 8 tasks x (200 - 80)
+    planned = eval_cost(
+        "darkroom", "dicp", tr, EvalConfig(model="-", out="-", episodes=10, plan=True), 0
+    )
+    assert planned == Cost("evaluate|darkroom|dicp|paper|plan|window", 8 * 120)
+    band = TrainConfig(dataset="-", out="-", objective="ad", preset="paper", attention="band")
+    assert eval_cost("darkroom", "ad", band, ev, 0).key.endswith("|cache")  # auto: its semantics
