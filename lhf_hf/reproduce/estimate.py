@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -164,11 +165,8 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
     Collections, derivations and filters do not depend on torch's threads: any count matches."""
     ref_cpu = reference.get("cpu", "?")
     sources = (
-        ("this machine", {k: v for k, v in table.items() if k[1] == cpu}),
-        (
-            f"reference ({ref_cpu})",
-            {(r["key"], ref_cpu, r["threads"]): r for r in reference["rates"]},
-        ),
+        ("here", {k: v for k, v in table.items() if k[1] == cpu}),
+        ("reference", {(r["key"], ref_cpu, r["threads"]): r for r in reference["rates"]}),
     )
     for source, rows in sources:
         found = [(t, v) for (k, _, t), v in rows.items() if k == key]
@@ -180,7 +178,7 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
             return Rate(v["seconds_per_unit"], v.get("overhead_s", 0.0), source, v["stages"])
         t, v = found[0]
         factor = THREAD_FACTOR if threads < t else 1 / THREAD_FACTOR
-        basis = f"{source}, measured at {t} thread(s) x {factor:.2f}"
+        basis = f"{source}, {t}-thread rate x {factor:.2f}"
         spu = v["seconds_per_unit"] * factor
         return Rate(spu, v.get("overhead_s", 0.0), basis, v["stages"])
     return None
@@ -210,13 +208,16 @@ def estimate(
                 row["seconds"] = rate.seconds(s.cost.units)
                 if jobs > 1 and s.kind not in IN_PROCESS:
                     row["seconds"] += CHILD_START_S
-                row["basis"] = f"{rate.basis}, {rate.stages} stage(s)"
+                row["basis"] = f"{rate.basis}, {rate.stages} stage{'s' * (rate.stages > 1)}"
         rows.append(row)
     durations = {s.hash: (r["seconds"] or 0.0) for s, r in zip(stages, rows, strict=True)}
     done = {s.hash for s, r in zip(stages, rows, strict=True) if r["cached"]}
     return {
         "cpu": cpu,
+        "cores": os.cpu_count() or 1,
+        "reference_cpu": reference.get("cpu", "?"),
         "jobs": jobs,
+        "unknown": sum(r["seconds"] is None and not r["cached"] for r in rows),
         "stages": rows,
         "to_run": sum(not r["cached"] for r in rows),
         "wall_s": schedule(stages, durations, done, jobs),
@@ -264,6 +265,7 @@ def schedule(
 def render(est: dict, header: str) -> str:
     lines = [header, ""]
     n = len(est["stages"])
+    width = len(f"[{n}/{n}]")
     for i, r in enumerate(est["stages"], 1):
         if r["cached"]:
             what = "cached"
@@ -271,18 +273,31 @@ def render(est: dict, header: str) -> str:
             what = f"to run, ? ({r['basis']})"
         else:
             what = f"to run, ~{duration(r['seconds'])} ({r['basis']})"
-        lines.append(f"[{i}/{n}] {r['kind']:<8} {r['label']}: {what}")
+        lines.append(f"{f'[{i}/{n}]':<{width}} {r['kind']:<8} {r['label']}: {what}")
+    lines += [
+        "",
+        f"Rates: 'here' = stages finished on this machine ({est['cpu']}) under the work folder; "
+        f"'reference' = lhf_hf/reproduce/rates.json ({est['reference_cpu']}).",
+    ]
+    if est["jobs"] > est["cores"]:
+        lines.append(
+            f"--jobs {est['jobs']} exceeds the {est['cores']} cores: the stages would share cores, "
+            "which this estimate does not model (it assumes a core per job)"
+        )
     total = f"~{duration(est['wall_s'])} wall with --jobs {est['jobs']}"
     if est["jobs"] > 1:
         total += f" ({duration(est['stage_s'])} of stage time)"
-    missing = est["missing"]
-    if missing:
-        kinds = missing[0] if len(missing) == 1 else f"{len(missing)} kinds of stage"
-        total = (
-            f"at least {total}: no rate is known for {kinds} (marked '?'); every finished stage "
-            "records its rate, so a smaller preset run first makes the estimate complete"
+    if est["missing"]:
+        timed = est["to_run"] - est["unknown"]
+        lines.append(
+            f"{est['to_run']} of {n} stages to run: {total} for the {timed} with a rate; unknown for "
+            f"the other {est['unknown']} (marked '?', {len(est['missing'])} kind(s) of stage never "
+            "measured: a finished stage records its rate, so running the same env, objective and "
+            "model preset once for a few steps, e.g. benchmarks/calibration/gridworlds.yaml, "
+            "completes the estimate)"
         )
-    lines += ["", f"{est['to_run']} of {n} stages to run on {est['cpu']}: {total}"]
+    else:
+        lines.append(f"{est['to_run']} of {n} stages to run: {total}")
     return "\n".join(lines)
 
 

@@ -218,17 +218,26 @@ def experiment_names() -> list[str]:
     return sorted(p.stem for p in EXPERIMENTS_DIR.glob("*.yaml"))
 
 
-def load_experiment(
-    name_or_path: str, preset: str = "quick", runs: int | None = None
-) -> Experiment:
-    """Read ``lhf_hf/reproduce/experiments/NAME.yaml`` (or a yaml path) at ``preset``."""
+def spec_path(name_or_path: str | Path) -> Path:
+    """The yaml file of a shipped experiment's name, or the given path (which must exist)."""
     path = Path(name_or_path)
-    if not path.suffix:
-        path = EXPERIMENTS_DIR / f"{name_or_path}.yaml"
+    if path.suffix:
+        if not path.is_file():
+            raise KeyError(f"no such spec file: {str(name_or_path)!r}")
+        return path
+    path = EXPERIMENTS_DIR / f"{name_or_path}.yaml"
     if not path.exists():
         raise KeyError(
             f"unknown experiment {name_or_path!r}: one of {experiment_names()} (or a yaml path)"
         )
+    return path
+
+
+def load_experiment(
+    name_or_path: str, preset: str = "quick", runs: int | None = None
+) -> Experiment:
+    """Read ``lhf_hf/reproduce/experiments/NAME.yaml`` (or a yaml path) at ``preset``."""
+    path = spec_path(name_or_path)
     try:
         spec = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:

@@ -23,13 +23,12 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .stages import DONE_FILE, Stage, StageRunner
+from .stages import DONE_FILE, LOG_FILE, Stage, StageRunner
 
 #: Kinds of stage that use every core by themselves (collection: its own worker processes).
 WHOLE_MACHINE = {"collect"}
 #: Kinds of stage run in this process (short, or alone anyway); the others get a child process.
 IN_PROCESS = {"collect", "derive", "filter"}
-LOG_FILE = "stage.log"
 #: Environment of a child: one thread for torch and the BLAS it calls.
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
@@ -88,12 +87,17 @@ def run_stages(
                     finished.add(stage.hash)
                     continue
                 out = stage.path(work)
-                out.mkdir(parents=True, exist_ok=True)
-                log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
-                env = {**os.environ, **ONE_THREAD}
-                child = subprocess.Popen(
-                    worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
-                )
+                try:
+                    out.mkdir(parents=True, exist_ok=True)
+                    log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
+                    env = {**os.environ, **ONE_THREAD}
+                    child = subprocess.Popen(
+                        worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
+                    )
+                except OSError as exc:
+                    failed.append(f"{stage.kind} {stage.label}")
+                    runner.echo(f"[failed] {stage.kind:<8} {stage.label}: could not start: {exc}")
+                    break
                 runner.done += 1
                 runner.echo(
                     f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label} "
@@ -120,7 +124,7 @@ def run_stages(
                         {"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall}
                     )
                 else:
-                    failed.append(stage.label)
+                    failed.append(f"{stage.kind} {stage.label}")
                     runner.echo(
                         f"[failed] {stage.kind:<8} {stage.label} (exit {child.returncode}); "
                         f"the end of {out / LOG_FILE}:\n{_tail(out / LOG_FILE)}"
@@ -133,11 +137,18 @@ def run_stages(
     except BaseException:
         # Interrupted (Ctrl-C reaches the children too): let them stop, keep what they wrote
         # (training resumes from its checkpoints on the next call).
-        for child in running:
+        if running:
+            runner.echo(
+                f"[lhf reproduce] interrupted: waiting up to 30 s for {len(running)} running "
+                "stage(s) to stop (what they finished or saved is kept)"
+            )
+        for child, (stage, *_) in running.items():
             try:
                 child.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 child.terminate()
+            state = "finished" if stage.done(work) else "stopped (resumes on the next call)"
+            runner.echo(f"[{state.split()[0]}] {stage.kind:<8} {stage.label}: {state}")
         raise
     if error is not None:
         raise error

@@ -10,7 +10,9 @@ runs), and ``report.md`` beside the paper's numbers.  Every stage is cached by i
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import time
 from pathlib import Path
 
@@ -22,12 +24,12 @@ from lhf_hf.filtering.run import run_filter
 from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
 from lhf_hf.training.trainer import get_last_checkpoint
-from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+from lhf_hf.utils.io import write_bytes_atomic, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
-from .experiment import Experiment, load_experiment
+from .experiment import Experiment, load_experiment, spec_path
 from .parallel import run_stages, worker_command
 from .report import render_report
 from .stages import Stage, StageRunner
@@ -162,8 +164,7 @@ def reproduce(
     jobs: stages run at once; above 1 each runs in its own process with one thread
         (``parallel.py``; 1.3x on 2 cores for trainings).
     """
-    if jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    check_jobs(jobs)
     exp = load_experiment(name, preset, runs)
     out = Path(out or f"results/{exp.name}-{preset}")
     work = Path(work)
@@ -175,9 +176,38 @@ def reproduce(
     )
     # The report folder is regenerated from the stage cache: an earlier report of ours is replaced
     # (and put back if this run fails); someone else's folder, or the cache itself, is refused.
+    if jobs > (os.cpu_count() or 1):
+        echo(
+            f"[lhf reproduce] warning: --jobs {jobs} on {os.cpu_count()} cores: the stages will "
+            "share cores (one thread each), which is slower than --jobs equal to the cores"
+        )
     with output_folder(out, "report", overwrite=True, inputs=[work], legacy=REPORT_FILES):
-        command = worker_command(name, preset, exp.runs, work)
+        command = None
+        if (
+            jobs > 1
+        ):  # the children plan from a copy: an edit of the spec meanwhile cannot reach them
+            command = worker_command(
+                snapshot_spec(name, preset, runs, exp, work), preset, exp.runs, work
+            )
         return _run(exp, stages, evals, work, out, echo, jobs, command)
+
+
+def check_jobs(jobs) -> None:
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+
+
+def snapshot_spec(name: str, preset: str, runs: int | None, exp: Experiment, work: Path) -> Path:
+    """A copy of the spec file under ``work/specs/<hash>/`` (same file name, so the same
+    experiment name), checked to load as the experiment this call planned."""
+    text = spec_path(name).read_bytes()
+    copy = work / "specs" / hashlib.sha256(text).hexdigest()[:12] / spec_path(name).name
+    if not copy.exists():
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        write_bytes_atomic(text, copy)
+    if load_experiment(str(copy), preset, runs) != exp:
+        raise RuntimeError(f"the spec {name!r} changed while this run was starting: run it again")
+    return copy
 
 
 def estimate_experiment(
@@ -189,6 +219,7 @@ def estimate_experiment(
 ) -> str:
     """``lhf reproduce ... --estimate``: the stages, which are cached, and the time the rest takes
     on this machine (``estimate.py``), as text; runs nothing."""
+    check_jobs(jobs)
     exp = load_experiment(name, preset, runs)
     stages, _ = plan_stages(exp, Path(work))
     est = estimate(stages, work, jobs)

@@ -23,6 +23,7 @@ from lhf_hf.collection.backend_verdict import cpu_model
 from lhf_hf.utils.io import write_json_atomic
 
 DONE_FILE = "stage.json"
+LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
 
 
 def config_hash(config: dict) -> str:
@@ -76,17 +77,22 @@ class StageRunner:
             self.log.append({"stage": stage.label, "path": str(out), "cached": True})
             return out
         self.echo(f"{head} ...")
+        # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
+        # covers only part of its work and is no rate for later estimates.
+        resumed = out.is_dir() and any(p.name != LOG_FILE for p in out.iterdir())
         t0 = time.perf_counter()
         out.mkdir(parents=True, exist_ok=True)
         stage.fn(out)
         wall = round(time.perf_counter() - t0, 1)
         done = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
-        if stage.cost is not None:  # a measured rate for later estimates
+        if stage.cost is not None and not resumed:  # a measured rate for later estimates
             done.update(
                 cost=dataclasses.asdict(stage.cost),
                 cpu=cpu_model(),
                 threads=torch.get_num_threads(),
             )
+        elif resumed:
+            done["resumed"] = True
         write_json_atomic(done, out / DONE_FILE)
         self.echo(f"{head}: done in {wall} s")
         self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})

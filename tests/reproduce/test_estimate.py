@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -81,20 +82,21 @@ def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
     ref = {"cpu": "Reference CPU", "rates": [{"key": "evaluate|x", "threads": 2,
                                                "seconds_per_unit": 0.5, "stages": 3}]}  # fmt: skip
     r = find_rate("train|x", 2, table, here, ref)
-    assert r.seconds_per_unit == pytest.approx(0.3) and r.basis == "this machine"
+    assert r.seconds_per_unit == pytest.approx(0.3) and r.basis == "here"
     # one thread (--jobs 2): the measured 2-thread rate times the side-by-side factor
     r1 = find_rate("train|x", 1, table, here, ref)
     assert r1.seconds_per_unit == pytest.approx(0.3 * THREAD_FACTOR)
-    assert "measured at 2 thread(s)" in r1.basis
+    assert r1.basis == "here, 2-thread rate x 1.53"
     # a collection does not depend on torch's threads
     assert find_rate("collect|x", 1, table, here, ref).seconds_per_unit == pytest.approx(0.005)
     # not measured here: the reference; not anywhere: None
     rr = find_rate("evaluate|x", 2, table, here, ref)
-    assert rr.seconds_per_unit == 0.5 and rr.basis == "reference (Reference CPU)"
+    assert rr.seconds_per_unit == 0.5 and rr.basis == "reference"
     assert find_rate("train|never", 2, table, here, ref) is None
 
 
-def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path):
+def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path, monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
     stages = _graph()
     _record(tmp_path, stages[0], 10.0, 2, cpu_model())  # collect: cached, and a rate
     ref = {"cpu": "Ref", "rates": [{"key": "train|x", "threads": 2, "seconds_per_unit": 2.0,
@@ -108,9 +110,15 @@ def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path):
     assert est["wall_s"] == pytest.approx(210.0)
     text = render(est, "head")
     assert "[1/7] collect  collect: cached" in text
-    assert "~1.7 min (reference (Ref), 1 stage(s))" in text
-    assert "6 of 7 stages to run" in text
-    assert "at least ~3.5 min wall with --jobs 1: no rate is known for 2 kinds of stage" in text
+    assert "train base: to run, ~1.7 min (reference, 1 stage)" in text
+    assert "'reference' = lhf_hf/reproduce/rates.json (Ref)" in text
+    assert (
+        "6 of 7 stages to run: ~3.5 min wall with --jobs 1 for the 3 with a rate; unknown for "
+        "the other 3 (marked '?', 2 kind(s) of stage never measured"
+    ) in text
+    assert "exceeds the" not in text
+    many = render(estimate(stages, tmp_path, jobs=64, reference=ref), "head")
+    assert "--jobs 64 exceeds the" in many
 
 
 def test_start_up_time_is_told_apart_from_the_work_that_scales(tmp_path):
@@ -158,3 +166,31 @@ def test_costs_by_hand():
     assert planned == Cost("evaluate|darkroom|dicp|paper|plan|window", 8 * 120)
     band = TrainConfig(dataset="-", out="-", objective="ad", preset="paper", attention="band")
     assert eval_cost("darkroom", "ad", band, ev, 0).key.endswith("|cache")  # auto: its semantics
+
+
+def test_a_resumed_stage_records_no_rate(tmp_path):
+    from lhf_hf.reproduce.stages import StageRunner
+
+    def work(out):
+        time.sleep(0.15)  # a wall time that rounds above 0
+        (out / "result").write_text("done")
+
+    s = Stage("train", "t", {"i": 1}, work, cost=Cost("train|x", 100))
+    s.path(tmp_path).mkdir(parents=True)
+    (s.path(tmp_path) / "model").mkdir()  # an interrupted earlier call left a checkpoint folder
+    StageRunner(tmp_path, echo=lambda m: None).run(s)
+    rec = json.loads((s.path(tmp_path) / DONE_FILE).read_text())
+    assert rec["resumed"] and "cost" not in rec and measured_stages(tmp_path) == []
+    fresh = Stage("train", "f", {"i": 2}, work, cost=Cost("train|x", 100))
+    StageRunner(tmp_path, echo=lambda m: None).run(fresh)
+    assert [r["label"] for r in measured_stages(tmp_path)] == ["f"]
+
+
+def test_jobs_must_be_a_positive_integer():
+    from lhf_hf.reproduce import estimate_experiment, reproduce
+
+    for bad in (0, -1, 2.5, "2", True):
+        with pytest.raises(ValueError, match="jobs must be an integer >= 1"):
+            estimate_experiment("darkroom-main", "cpu", jobs=bad)
+        with pytest.raises(ValueError, match="jobs must be an integer >= 1"):
+            reproduce("darkroom-main", "cpu", jobs=bad)

@@ -95,7 +95,9 @@ def test_a_failed_stage_stops_new_starts_and_names_its_log(tmp_path):
     lines: list[str] = []
     runner = StageRunner(tmp_path, total=len(stages), echo=lines.append)
     cmd = _command(tmp_path, failing={"train base"})
-    with pytest.raises(RuntimeError, match=r"1 stage\(s\) failed: \['train base'\].*run the same"):
+    with pytest.raises(
+        RuntimeError, match=r"1 stage\(s\) failed: \['train train base'\].*run the same"
+    ):
         run_stages(stages, runner, jobs=2, worker_command=cmd, poll_s=0.02)
     text = "\n".join(lines)
     assert "[failed] train    train base (exit 3)" in text and "something broke" in text
@@ -145,3 +147,35 @@ def test_reproduce_with_two_jobs_matches_the_plan_and_caches(tmp_path):
     # in this process, the same plan: all cached
     reproduce(spec, "quick", out=out, work=work, echo=lines.append)
     assert all(s["cached"] for s in json.loads((out / "results.json").read_text())["stages"])
+
+
+@pytest.mark.slow
+def test_children_plan_from_a_snapshot_of_the_spec(tmp_path):
+    """Editing the spec file while a --jobs run goes on cannot reach the stages it starts."""
+    import threading
+
+    from tests.reproduce.test_reproduce import TINY, _spec
+
+    spec = _spec(tmp_path, TINY)
+    work, out = tmp_path / "work", tmp_path / "out"
+    edited = json.loads(json.dumps(TINY))
+    edited["presets"]["quick"]["evaluate"]["episodes"] = 3
+
+    def edit(line: str) -> None:  # as soon as the first child starts, the user edits the spec
+        if "process" in line and "episodes: 3" not in Path(spec).read_text():
+            _spec(tmp_path, edited)
+
+    lines: list[str] = []
+    lock = threading.Lock()
+
+    def echo(line: str) -> None:
+        with lock:
+            lines.append(line)
+            edit(line)
+
+    reproduce(spec, "quick", out=out, work=work, echo=echo, jobs=2)
+    assert "episodes: 3" in Path(spec).read_text()  # the edit happened during the run
+    evals = [json.loads(p.read_text()) for p in work.glob("evaluate/*/eval/eval_results.json")]
+    assert len(evals) == 4 and {r["config"]["episodes"] for r in evals} == {2}
+    (snap,) = work.glob("specs/*/tiny.yaml")
+    assert "episodes: 2" in snap.read_text()

@@ -68,6 +68,8 @@ def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
 def test_spec_errors(tmp_path):
     with pytest.raises(KeyError, match="unknown experiment 'nope'"):
         load_experiment("nope")
+    with pytest.raises(KeyError, match="no such spec file: '.*/missing.yaml'"):
+        load_experiment(str(tmp_path / "missing.yaml"))
     with pytest.raises(ValueError, match="has no preset 'cpu'"):
         load_experiment(_spec(tmp_path, TINY), "cpu")
     with pytest.raises(ValueError, match="unknown keys"):
@@ -237,7 +239,7 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
     assert done["cost"]["key"] == "train|darkroom|ad|tiny|window" and done["threads"] >= 1
     text = estimate_experiment(_spec(tmp_path, changed), "quick", work=work)
     assert "8 of 12 stages to run" in text and "no rate" not in text
-    assert text.count("cached") == 4 and text.count("(this machine") == 8
+    assert text.count("cached") == 4 and text.count("(here, ") == 8
     assert main(["reproduce", _spec(tmp_path, changed), "--work", str(work), "--estimate"]) == 0
     reproduce(_spec(tmp_path, changed), "quick", out=out, work=work, echo=lines.append)
     third = json.loads((out / "results.json").read_text())
