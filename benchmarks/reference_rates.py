@@ -5,10 +5,11 @@
 Reads every ``stage.json`` under the given stage caches that recorded its cost (stages finished
 by a version with ``--estimate``), keeps those of this machine's CPU model, and writes the mean
 seconds per unit of each (key, torch threads) with the number of stages behind it.  The shipped
-table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind) and the
-README's main job (``darkroom-noisy --preset quick`` with ``--jobs`` 1 and 2); BENCHMARKS.md names
-the commands.  Short stages overstate the rate by their start-up cost (loading data, building the
-model, saving), so estimates from this table err long.
+table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind),
+``benchmarks/calibration/planning.yaml`` and ``darkroom-half --preset quick`` (a derivation,
+lightweight models); BENCHMARKS.md names the commands.  The start-up part of each stage (imports,
+loading, saving) is told apart from the part that scales (``estimate.work_seconds``), so short
+calibration stages give usable rates.
 """
 
 from __future__ import annotations
