@@ -16,6 +16,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from lhf_hf.utils.io import write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
@@ -116,9 +117,16 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         f = np.array([r["mean_curve"] for r in filt[backbone]])
         mb, mf = b.mean(1), f.mean(1)  # whole-curve mean per run
         e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else float("nan")
-        e_std = None
+        e_std = e_ci = None
         if len(mb) == len(mf) and len(mb) > 1 and np.all(mb != 0):
-            e_std = float(np.std((mf - mb) / mb, ddof=0))
+            per_run = (mf - mb) / mb  # (runs,) E of each paired run (same seed and split)
+            e_std = float(np.std(per_run, ddof=0))
+            # 95% confidence interval of the mean per-run E (Student t, n - 1 degrees of
+            # freedom): with 2 or 3 runs it is wide (t = 12.7 / 4.3), which is the honest reading
+            half = (
+                stats.t.ppf(0.975, len(per_run) - 1) * per_run.std(ddof=1) / np.sqrt(len(per_run))
+            )
+            e_ci = [float(per_run.mean() - half), float(per_run.mean() + half)]
         tail = max(1, b.shape[1] // 10)
         rows.append(
             {
@@ -133,6 +141,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "lhf_final": float(f[:, -tail:].mean()),
                 "E": float(e),
                 "E_std": e_std,
+                "E_ci95": e_ci,
                 "baseline_runs": [r["_path"] for r in base[backbone]],
                 "lhf_runs": [r["_path"] for r in filt[backbone]],
             }

@@ -54,7 +54,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "## Relative enhancement E (%) of LHF over each backbone",
         "",
         "E = (mean return over the whole test curve with LHF - without) / without, averaged over runs; "
-        "± is the std of the per-run E over paired runs (same seed and split). Paper values in "
+        "± is the std of the per-run E over paired runs (same seed and split); the verdicts below "
+        "also give the 95% confidence interval of the mean per-run E (Student t). Paper values in "
         "parentheses.",
     ]
     if exp.dicp_plan_modes() == (False, True):
@@ -84,7 +85,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
             std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
             entries.append(f"{_pct(r['E'])}{std}{paper_s}")
             per_col[c].append(r["E"])
-            verdicts.append((label, r["backbone"], r["E"], r["E_std"]))
+            verdicts.append((label, r["backbone"], r["E"], r["E_std"], r.get("E_ci95")))
         lines.append(f"| {label} | " + " | ".join(entries) + " |")
     avg = []
     for c in cols:
@@ -95,8 +96,9 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     if len(cells) > 1:
         lines.append("| average | " + " | ".join(avg) + " |")
     lines += ["", "## Where LHF helps, and where it does not", ""]
-    for label, backbone, e, e_std in verdicts:
-        lines.append(f"- {label}, {backbone}: E {_pct(e)}% -> {verdict(e, e_std)}")
+    for label, backbone, e, e_std, ci in verdicts:
+        interval = f" (95% CI of the per-run E: {_pct(ci[0])} .. {_pct(ci[1])})" if ci else ""
+        lines.append(f"- {label}, {backbone}: E {_pct(e)}%{interval} -> {verdict(e, e_std)}")
     lines += [
         "",
         "## Absolute returns",

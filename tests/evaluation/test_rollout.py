@@ -185,6 +185,9 @@ def test_compare_relative_enhancement_by_hand(tmp_path):
     assert row["backbone"] == "AD" and row["baseline_mean"] == 2 and row["lhf_mean"] == 3.5
     assert np.isclose(row["E"], (3.5 - 2) / 2)
     assert np.isclose(row["E_std"], np.std([0.5, 1.0]))  # per-run E: (3-2)/2, (4-2)/2
+    # 95% CI of the mean per-run E: 0.75 +- t(0.975, 1) x s / sqrt(2), s = 0.3536, t = 12.706
+    half = 12.7062 * np.std([0.5, 1.0], ddof=1) / np.sqrt(2)
+    assert np.allclose(row["E_ci95"], [0.75 - half, 0.75 + half], atol=1e-4)
     assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.50 | +75.0 ± 25.0 |" in r["table"]
     assert (tmp_path / "cmp" / "compare.png").stat().st_size > 0
     assert (tmp_path / "cmp" / "compare.md").read_text().startswith("| darkroom |")

@@ -172,12 +172,14 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
                 "baseline_final": 6.0, "lhf_final": 7.0, "runs_baseline": 2, "runs_lhf": 2}  # fmt: skip
 
     cells = [{"env_id": "darkroom", "arm": "lhf",
-              "rows": [row("AD", 0.2), row("DICP", 0.1), row("DICP + plan", -0.5)]}]  # fmt: skip
+              "rows": [{**row("AD", 0.2), "E_ci95": [0.083, 0.317]}, row("DICP", 0.1),
+                       row("DICP + plan", -0.5)]}]  # fmt: skip
     summary = {"stages": [], "created": "now", "versions": {}}
     text = render_report(both, cells, summary, tmp_path)
     assert "| env | AD | DICP | DICP + plan |" in text
     assert "| darkroom | +20.0 ± 1.0 (+25.1) | +10.0 ± 1.0 (+15.2) | -50.0 ± 1.0 (+15.2) |" in text
     assert "darkroom, DICP + plan: E -50.0% -> hurts" in text
+    assert "darkroom, AD: E +20.0% (95% CI of the per-run E: +8.3 .. +31.7) -> helps" in text
     assert "the paper's DICP values are with planning" in text
     assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
 
