@@ -41,7 +41,7 @@ from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
-from .parallel import IN_PROCESS, WHOLE_MACHINE
+from .parallel import IN_PROCESS, can_start
 from .stages import DONE_FILE, Cost, Stage
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
@@ -236,27 +236,24 @@ def schedule(
         return sum(seconds[s.hash] for s in stages if s.hash not in done)
     now, finished = 0.0, set(done)
     pending = [s for s in stages if s.hash not in done]
-    running: list[tuple[float, str, int]] = []  # (end, hash, cores)
+    running: list[tuple[float, str]] = []  # (end, hash) of the children
     while pending or running:
-        used = sum(c for _, _, c in running)
         for s in list(pending):
             if any(i.hash not in finished for i in s.inputs):
                 continue
-            cores = jobs if s.kind in WHOLE_MACHINE else 1
-            if used + cores > jobs:
+            if not can_start(s, len(running), jobs):
                 break
             pending.remove(s)
             if s.kind in IN_PROCESS:
                 now += seconds[s.hash]  # blocks the scheduler
                 finished.add(s.hash)
                 continue
-            heapq.heappush(running, (now + seconds[s.hash], s.hash, cores))
-            used += cores
+            heapq.heappush(running, (now + seconds[s.hash], s.hash))
         if not running:
             if pending:  # inputs outside the plan: nothing more can start
                 break
             continue
-        end, h, _ = heapq.heappop(running)
+        end, h = heapq.heappop(running)
         now = max(now, end)
         finished.add(h)
     return now

@@ -33,6 +33,17 @@ IN_PROCESS = {"collect", "derive", "filter"}
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
+def check_jobs(jobs) -> None:
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+
+
+def can_start(stage: Stage, running: int, jobs: int) -> bool:
+    """With ``running`` children of ``jobs``: a whole-machine stage only when none run, any
+    other while a slot is free (``estimate.schedule`` simulates the same rule)."""
+    return running == 0 if stage.kind in WHOLE_MACHINE else running < jobs
+
+
 def run_stages(
     stages: Sequence[Stage],
     runner: StageRunner,
@@ -55,13 +66,12 @@ def run_stages(
         if missing:
             raise ValueError(f"stage {s.label!r} reads {missing}, which are not in the plan")
     pending = list(stages)
-    running: dict[subprocess.Popen, tuple[Stage, float, int, object]] = {}
+    running: dict[subprocess.Popen, tuple[Stage, float, object]] = {}
     finished: set[str] = set()
     failed: list[str] = []
     error: Exception | None = None  # of a stage run in this process
     try:
         while pending or running:
-            used = sum(cores for _, _, cores, _ in running.values())
             for stage in list(pending):
                 if failed:
                     break
@@ -72,21 +82,21 @@ def run_stages(
                     runner.run(stage)  # reported as cached, nothing runs
                     finished.add(stage.hash)
                     continue
-                cores = jobs if stage.kind in WHOLE_MACHINE else 1
-                if used + cores > jobs:
+                if not can_start(stage, len(running), jobs):
                     break  # first come, first served: a whole-machine stage is not starved
                 pending.remove(stage)
                 if stage.kind in IN_PROCESS:
                     try:
                         runner.run(stage)
                     except Exception as exc:  # noqa: BLE001 (re-raised once the children end)
-                        failed.append(stage.label)
+                        failed.append(f"{stage.kind} {stage.label}")
                         error = exc
                         runner.echo(f"[failed] {stage.kind:<8} {stage.label}: {exc}")
                         break
                     finished.add(stage.hash)
                     continue
                 out = stage.path(work)
+                log = None
                 try:
                     out.mkdir(parents=True, exist_ok=True)
                     log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
@@ -95,6 +105,8 @@ def run_stages(
                         worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
                     )
                 except OSError as exc:
+                    if log is not None:
+                        log.close()
                     failed.append(f"{stage.kind} {stage.label}")
                     runner.echo(f"[failed] {stage.kind:<8} {stage.label}: could not start: {exc}")
                     break
@@ -104,8 +116,7 @@ def run_stages(
                     f"... (process {child.pid}, 1 thread, log "
                     f"{out / LOG_FILE})"
                 )
-                running[child] = (stage, time.perf_counter(), cores, log)
-                used += cores
+                running[child] = (stage, time.perf_counter(), log)
             if not running:
                 if pending and not failed:
                     names = [s.label for s in pending]
@@ -113,7 +124,7 @@ def run_stages(
                 break
             time.sleep(poll_s)
             for child in [c for c in running if c.poll() is not None]:
-                stage, t0, _, log = running.pop(child)
+                stage, t0, log = running.pop(child)
                 log.close()
                 out = stage.path(work)
                 if child.returncode == 0 and (out / DONE_FILE).exists():

@@ -30,7 +30,7 @@ from lhf_hf.utils.versions import library_versions
 
 from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
 from .experiment import Experiment, load_experiment, spec_path
-from .parallel import run_stages, worker_command
+from .parallel import check_jobs, run_stages, worker_command
 from .report import render_report
 from .stages import Stage, StageRunner
 
@@ -192,16 +192,12 @@ def reproduce(
         return _run(exp, stages, evals, work, out, echo, jobs, command)
 
 
-def check_jobs(jobs) -> None:
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
-
-
 def snapshot_spec(name: str, preset: str, runs: int | None, exp: Experiment, work: Path) -> Path:
     """A copy of the spec file under ``work/specs/<hash>/`` (same file name, so the same
     experiment name), checked to load as the experiment this call planned."""
-    text = spec_path(name).read_bytes()
-    copy = work / "specs" / hashlib.sha256(text).hexdigest()[:12] / spec_path(name).name
+    path = spec_path(name)
+    text = path.read_bytes()
+    copy = work / "specs" / hashlib.sha256(text).hexdigest()[:12] / path.name
     if not copy.exists():
         copy.parent.mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(text, copy)
