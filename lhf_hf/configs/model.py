@@ -23,6 +23,12 @@ StateEncoding = Literal["cells", "coordinates"]
 STATE_ENCODINGS: tuple[str, ...] = get_args(StateEncoding)
 MAX_CELLS = 4096
 
+# How DICP's reward loss weighs its positions (ICRLConfig.reward_weighting): "data" = as the histories
+# hold them; "actions" = importance weights that make the actions uniform within each class of the
+# previous step's reward (the planner asks about every action; docs/evaluation.md says why).
+RewardWeighting = Literal["data", "actions"]
+REWARD_WEIGHTINGS: tuple[str, ...] = get_args(RewardWeighting)
+
 # What a token attends to (ICRLConfig.attention): "window" = causal attention within a training
 # window of K transitions (the reference's; evaluated by re-encoding the last window); "band" =
 # every token attends to the last K transitions' tokens in every layer, trained on longer sequences

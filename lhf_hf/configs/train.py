@@ -9,7 +9,14 @@ from dataclasses import dataclass
 from lhf_hf.constants import Objective
 from lhf_hf.utils.hub import validate_repo_id
 
-from .model import Attention, LabelPositions, ModelPreset, StateEncoding, check_model_fields
+from .model import (
+    Attention,
+    LabelPositions,
+    ModelPreset,
+    RewardWeighting,
+    StateEncoding,
+    check_model_fields,
+)
 from .types import check_types
 
 
@@ -46,6 +53,11 @@ class TrainConfig:
         each coordinate) or ``cells`` (one-hot over the grid's cells; DICP predicts the next cell as
         one class, the reference's encoding); real-valued states are used as they are.  Measured on
         Darkroom (docs/training.md): coordinates learn faster at the cpu budget.
+    reward_weighting: how DICP's reward loss weighs positions: ``data`` (as the histories hold
+        them) or ``actions`` (every action alike within each class of the previous step's reward,
+        so the reward head learns what the planner asks: the reward of any action, not only of the
+        source's); None = ``actions`` where it applies (DICP, discrete actions, reward classes),
+        else ``data``.  Measured on Darkroom in docs/evaluation.md.
     seed: seeds the model init, dropout and the window sampler (every process gets the same seed).
     save_steps: checkpoint interval (resumable with ``resume``).
     logging_steps: loss log interval.
@@ -75,6 +87,7 @@ class TrainConfig:
     max_grad_norm: float = 1.0
     dynamics_coef: float = 1.0
     state_encoding: StateEncoding = "coordinates"
+    reward_weighting: RewardWeighting | None = None
     seed: int = 0
     save_steps: int = 500
     logging_steps: int = 50

@@ -12,7 +12,14 @@ from __future__ import annotations
 from huggingface_hub.dataclasses import strict
 from transformers import LlamaConfig
 
-from lhf_hf.configs.model import ATTENTIONS, MAX_CELLS, PRESETS, STATE_ENCODINGS, check_model_fields
+from lhf_hf.configs.model import (
+    ATTENTIONS,
+    MAX_CELLS,
+    PRESETS,
+    REWARD_WEIGHTINGS,
+    STATE_ENCODINGS,
+    check_model_fields,
+)
 
 
 @strict
@@ -54,6 +61,14 @@ class ICRLConfig(LlamaConfig):
         ``EnvSpec.reward_values``): DICP's reward head is then a classifier over them (cross-entropy,
         as the reference's), and the predicted reward is the most likely class's value; None: a
         regression head (squared error), for real-valued rewards.
+    reward_weighting: how DICP's reward loss weighs the positions: ``data`` (as the histories hold
+        them) or ``actions`` (reward classes and discrete actions only): each position is weighted by
+        ``1 / (A * p(a | c))``, where ``p(a | c)`` is the frequency of its action among the batch's
+        positions whose previous step's reward is in the same class ``c``, so that within each class
+        every action weighs the same.  Why: the planner asks the reward head about every action
+        from every state, while the source agents, once on the goal, almost always stay; the
+        unweighted loss lets the head learn "rewarded if the previous step was" and imagine rewards
+        for moves that leave the goal (docs/evaluation.md).
     plan_beams / plan_horizon / plan_samples: DICP planning (beams and depth of the discrete beam
         search; candidates of the continuous greedy search: the policy mean plus samples).
     """
@@ -77,6 +92,7 @@ class ICRLConfig(LlamaConfig):
     plan_horizon: int = 8
     plan_samples: int = 10
     reward_values: list[float] | None = None
+    reward_weighting: str = "data"
 
     # LlamaConfig defaults that make no sense without a vocabulary.
     vocab_size: int = 1
@@ -113,6 +129,15 @@ class ICRLConfig(LlamaConfig):
             raise bad("state_bins", "must be 0 (real-valued states) or >= 2")
         if self.attention not in ATTENTIONS:
             raise bad("attention", f"must be one of {ATTENTIONS}")
+        if self.reward_weighting not in REWARD_WEIGHTINGS:
+            raise bad("reward_weighting", f"must be one of {REWARD_WEIGHTINGS}")
+        if self.reward_weighting == "actions" and not (
+            self.objective == "dicp" and self.discrete_actions and rv
+        ):
+            raise bad(
+                "reward_weighting",
+                "'actions' is for DICP with discrete actions and reward classes (reward_values)",
+            )
         if self.state_encoding not in STATE_ENCODINGS:
             raise bad("state_encoding", f"must be one of {STATE_ENCODINGS}")
         if self.state_encoding == "cells" and self.state_bins and self.cells > MAX_CELLS:

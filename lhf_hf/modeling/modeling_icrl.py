@@ -339,8 +339,11 @@ class ICRLModel(ICRLPreTrainedModel):
             action_loss = self._action_loss(out, action_labels, mask)
             loss = action_loss
             if dicp and reward_labels is not None:
+                weights = None
+                if c.reward_weighting == "actions":
+                    weights = self.reward_weights(actions, prev_rewards, has_prev, mask)
                 dynamics_loss = self._dynamics_loss(
-                    out, reward_labels, next_state_labels, return_labels, mask
+                    out, reward_labels, next_state_labels, return_labels, mask, weights
                 )
                 loss = action_loss + c.dynamics_coef * dynamics_loss
         return ICRLOutput(
@@ -362,17 +365,43 @@ class ICRLModel(ICRLPreTrainedModel):
         nll = 0.5 * z.pow(2) + log_std + 0.5 * math.log(2 * math.pi)  # (N, A)
         return nll.sum(-1).mean()
 
-    def _dynamics_loss(self, out, rewards, next_states, returns, mask) -> torch.Tensor:
-        """Reward MSE + next-state loss (cross-entropy per integer coordinate, else MSE) + return MSE.
+    def reward_weights(self, actions, prev_rewards, has_prev, mask) -> torch.Tensor:
+        """(N,) weights of the labelled positions in the reward loss (``reward_weighting="actions"``).
+
+        Positions are grouped by the class of the previous step's reward (one more group for the
+        first step of a history); within a group, a position whose action has frequency ``p`` among
+        the group's positions weighs ``1 / (A p)``.  A group's weights then sum to its size times the
+        fraction of the A actions it holds, so the groups keep (about) their share of the loss and
+        only the actions within each are evened out.  actions, prev_rewards, has_prev: (B, T).
+        """
+        A = self.config.action_dim
+        n_cls = len(self.config.reward_values)
+        a = actions[mask].long()  # (N,)
+        group = torch.where(
+            has_prev[mask].bool(), self.reward_class_of(prev_rewards[mask]), n_cls
+        )  # (N,) in [0, n_cls]
+        key = group * A + a  # (N,) one bin per (group, action)
+        counts = torch.bincount(key, minlength=(n_cls + 1) * A).view(n_cls + 1, A).float()
+        p = counts / counts.sum(-1, keepdim=True).clamp(min=1)  # (n_cls + 1, A) p(a | group)
+        return 1.0 / (A * p.flatten()[key])  # (N,)
+
+    def _dynamics_loss(self, out, rewards, next_states, returns, mask, weights=None) -> torch.Tensor:
+        """Reward loss + next-state loss (cross-entropy per integer coordinate, else MSE) + return MSE.
 
         Squared error is the Gaussian log-likelihood of W_theta in the paper's DICP objective up to
         constants; integer grid coordinates get a categorical likelihood so the planner can imagine
-        exact grid states.
+        exact grid states.  weights: (N,) per labelled position for the reward loss
+        (``reward_weights``; None = every position alike); the loss is their weighted mean.
         """
         c = self.config
         if c.reward_values:
-            reward_loss = F.cross_entropy(
-                out["reward_logits"][mask].float(), self.reward_class_of(rewards[mask])
+            per_pos = F.cross_entropy(
+                out["reward_logits"][mask].float(),
+                self.reward_class_of(rewards[mask]),
+                reduction="none",
+            )  # (N,)
+            reward_loss = (
+                per_pos.mean() if weights is None else (per_pos * weights).sum() / weights.sum()
             )
         else:
             reward_loss = F.mse_loss(out["reward_pred"][mask], rewards[mask].to(self._dtype))

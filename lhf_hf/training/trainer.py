@@ -46,11 +46,14 @@ IDENTITY_FILE = "lhf_train_identity.json"
 _IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", "lr",
                     "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
                     "dynamics_coef", "seed", "batch_size", "max_steps",
-                    "state_encoding", "attention", "sequence_length")  # fmt: skip
+                    "state_encoding", "attention", "sequence_length", "reward_weighting")  # fmt: skip
 _MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "attention", "action_dim",
                  "discrete_actions",
                  "context_length", "label_positions", "hidden_size", "intermediate_size",
-                 "num_hidden_layers", "num_attention_heads", "dynamics_coef")  # fmt: skip
+                 "num_hidden_layers", "num_attention_heads", "dynamics_coef",
+                 "reward_weighting")  # fmt: skip
+#: What identities written before a field existed mean by its absence.
+_BEFORE_FIELD = {"reward_weighting": "data"}
 PICKLED_TRAINING_ARGS = "training_args.bin"
 LOG_FILE = "training_log.json"
 LOSS_PLOT = "training_loss.png"
@@ -167,6 +170,14 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
             "are real-valued: use 'coordinates' (real states are used as they are)"
         )
     discrete = isinstance(action_space, gym.spaces.Discrete)
+    reward_classes = list(spec.reward_values) if spec.reward_values else None
+    weighting_applies = cfg.objective == "dicp" and discrete and bool(reward_classes)
+    if cfg.reward_weighting == "actions" and not weighting_applies:
+        raise ValueError(
+            "TrainConfig.reward_weighting='actions' is for DICP on envs with discrete actions and "
+            f"few reward values; {cfg.objective} on {spec.env_id} has none to weigh: use 'data'"
+        )
+    weighting = cfg.reward_weighting or ("actions" if weighting_applies else "data")
     return icrl_config(
         cfg.preset,
         objective=cfg.objective,
@@ -182,7 +193,8 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
         dynamics_coef=cfg.dynamics_coef,
         return_scale=float(spec.horizon),
         plan_horizon=spec.plan_horizon,
-        reward_values=list(spec.reward_values) if spec.reward_values else None,
+        reward_values=reward_classes,
+        reward_weighting=weighting,
     )
 
 
@@ -328,9 +340,13 @@ def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> di
     optimisation settings.  A resumed run must match the checkpoint's."""
     selection = provenance.get("selection") or {}
     return {
-        # the resolved sequence length: an unset one and its default are the same run
+        # the resolved sequence length and reward weighting: an unset one and its default are the
+        # same run
         "train": {k: getattr(cfg, k) for k in _IDENTITY_FIELDS}
-        | {"sequence_length": provenance.get("sequence_length")},
+        | {
+            "sequence_length": provenance.get("sequence_length"),
+            "reward_weighting": config.reward_weighting,
+        },
         "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
         "dataset_fingerprint": provenance["dataset"]["fingerprint"],
         "selection_fingerprint": selection.get("counts_sha256"),
@@ -349,7 +365,8 @@ def check_resume(checkpoint: str, identity: dict) -> None:
     diff = []
     for part in ("train", "model"):
         for k in sorted(set(old.get(part, {})) | set(identity[part])):
-            a, b = old.get(part, {}).get(k), identity[part].get(k)
+            # a checkpoint from before a field existed was trained as its old behaviour
+            a, b = old.get(part, {}).get(k, _BEFORE_FIELD.get(k)), identity[part].get(k)
             line = f"{k}: {a!r} -> {b!r}"
             if a != b and line not in diff:  # objective etc. are in both parts: named once
                 diff.append(line)

@@ -386,3 +386,57 @@ def test_cell_encoding_refuses_unknown_names_and_huge_grids():
         icrl_config("tiny", state_dim=3, state_bins=17, state_encoding="cells")
     # real-valued states ignore the encoding
     assert not icrl_config("tiny", state_bins=0, state_encoding="cells").cell_encoded
+
+
+def test_reward_weighting_actions_weights_by_hand_and_weighted_loss():
+    """``reward_weighting="actions"``: within each class of the previous step's reward (and the
+    group of first steps) a position weighs 1 / (A p(a | group)), checked on a hand-made batch; the
+    reward loss is the weighted mean of the per-position cross-entropies; ``data`` is unweighted."""
+    import torch.nn.functional as F
+
+    config = icrl_config("tiny", objective="dicp", state_dim=2, state_bins=9, action_dim=5,
+                         context_length=8, reward_values=[0.0, 1.0],
+                         reward_weighting="actions")  # fmt: skip
+    torch.manual_seed(0)
+    model = ICRLModel(config).eval()
+    B, T = 1, 8
+    batch = labelled_dicp_batch(B, T, same_next_states=True)
+    # previous reward 1 at positions 0-3 (actions 4, 4, 4, 0); previous reward 0 at 4-6 (actions
+    # 1, 2, 1); position 7 is a history's first step (action 3)
+    batch["prev_rewards"] = torch.tensor([[1.0, 1, 1, 1, 0, 0, 0, 0]])
+    batch["has_prev"] = torch.tensor([[True] * 7 + [False]])
+    batch["actions"] = torch.tensor([[4, 4, 4, 0, 1, 2, 1, 3]])
+    mask = torch.ones(B, T, dtype=torch.bool)
+    w = model.reward_weights(batch["actions"], batch["prev_rewards"], batch["has_prev"], mask)
+    A = 5
+    expected = torch.tensor([1 / (A * 3 / 4)] * 3 + [1 / (A * 1 / 4)]  # reward-1 group
+                            + [1 / (A * 2 / 3), 1 / (A * 1 / 3), 1 / (A * 2 / 3)]  # reward-0 group
+                            + [1 / (A * 1)])  # first steps  # fmt: skip
+    torch.testing.assert_close(w, expected)
+    # a group's weights sum to its size x the fraction of the actions it holds
+    torch.testing.assert_close(w[:4].sum(), torch.tensor(4 * 2 / 5))
+    out = model(**batch)
+    ce = F.cross_entropy(out.reward_logits[0], batch["reward_labels"][0].long(), reduction="none")
+    state_ce = F.cross_entropy(out.next_state_logits.flatten(0, 2), batch["states"].flatten())
+    ret = F.mse_loss(out.return_pred, batch["reward_labels"] / config.return_scale)
+    torch.testing.assert_close(out.dynamics_loss, (ce * w).sum() / w.sum() + state_ce + ret)
+    # unweighted: the plain mean, as before the field existed
+    model.config.reward_weighting = "data"
+    out = model(**batch)
+    torch.testing.assert_close(out.dynamics_loss, ce.mean() + state_ce + ret)
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        dict(objective="ad", reward_values=[0.0, 1.0]),  # no reward head
+        dict(objective="dicp"),  # a regression head: no classes to group by
+        dict(objective="dicp", reward_values=[0.0, 1.0], discrete_actions=False, state_bins=0),
+    ],
+)
+def test_reward_weighting_actions_refused_where_it_does_not_apply(fields):
+    with pytest.raises(ValueError, match="ICRLConfig.reward_weighting 'actions' is for DICP"):
+        icrl_config("tiny", state_dim=2, action_dim=5, reward_weighting="actions",
+                    **{"state_bins": 9, **fields})  # fmt: skip
+    with pytest.raises(ValueError, match="reward_weighting must be one of"):
+        icrl_config("tiny", reward_weighting="uniform")

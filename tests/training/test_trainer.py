@@ -167,8 +167,36 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
             TrainConfig(objective="ad", state_encoding="cells", **base),
             has_optimal=False,
         )
+    with pytest.raises(ValueError, match="reward_weighting='actions' is for DICP"):
+        model_config_for(
+            get_spec("metaworld-reach"),
+            TrainConfig(objective="dicp", reward_weighting="actions", **base),
+            has_optimal=False,
+        )
+    with pytest.raises(ValueError, match="reward_weighting='actions' is for DICP"):
+        model_config_for(
+            get_spec("darkroom"),
+            TrainConfig(objective="ad", reward_weighting="actions", **base),
+            has_optimal=False,
+        )
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         train(TrainConfig(objective="ad", resume=True, **base))
+
+
+@pytest.mark.parametrize(
+    "env_id, objective, given, resolved",
+    [
+        ("darkroom", "dicp", None, "actions"),  # reward classes, discrete actions: weighted
+        ("darkroom", "dicp", "data", "data"),
+        ("darkroom", "ad", None, "data"),  # no reward head
+        ("metaworld-reach", "dicp", None, "data"),  # a regression head
+    ],
+)
+def test_reward_weighting_default_resolves_per_env_and_objective(
+    tmp_path, env_id, objective, given, resolved
+):
+    cfg = TrainConfig(dataset="d", out=str(tmp_path), objective=objective, reward_weighting=given)
+    assert model_config_for(get_spec(env_id), cfg, has_optimal=True).reward_weighting == resolved
 
 
 def test_existing_output_needs_resume_or_overwrite(small_darkroom, tmp_path):
