@@ -169,7 +169,9 @@ class Context:
         self._keep(embeds, self._windows(n, None), self.max_tokens)
         L = self.length
         pos = torch.arange(L).unsqueeze(0).expand(B, L)
-        hidden, _ = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=False)
+        # the window's keys and values are kept for a planner (``snapshot``): encoding the window
+        # again there would double the cost of every planned step
+        hidden, self.cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
         return hidden[:, -n:]
 
     def _keep(self, embeds, win, keep: int) -> None:
@@ -186,22 +188,20 @@ class Context:
         """(cache of the kept tokens, its length, the next token's stream position) for a planner.
 
         The cache shares the context's tensors (appending to it creates new ones), so planning never
-        changes the context; without a cache the kept tokens are encoded once here."""
-        if self.mode == "cache":
+        changes the context.  ``window``: the last window's encoding (kept by ``append``, positions
+        from 0 as in a training window); ``recompute``: the kept tokens are encoded here."""
+        if self.mode in ("cache", "window"):
             layers = self.cache if self.lean is not None else self.cache.layers
             data = [(layer.keys, layer.values) for layer in layers]
-            return DynamicCache(ddp_cache_data=data), self.length, self.pos
-        B, L, _ = self.embeds.shape
-        if self.mode == "recompute":
-            k_pos = torch.arange(self.start, self.pos)  # (L,)
-            mask = band_mask(k_pos, self.windows, k_pos, self.embeds.dtype)
-            _, cache = self.model.run_backbone(
-                self.embeds,
-                position_ids=k_pos[None].expand(B, L),
-                use_cache=True,
-                attention_mask=mask[None, None].expand(B, 1, L, L),
-            )
-            return cache, L, self.pos
-        pos = torch.arange(L).unsqueeze(0).expand(B, L)
-        _, cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
-        return cache, L, L
+            pos = self.pos if self.mode == "cache" else self.length
+            return DynamicCache(ddp_cache_data=data), self.length, pos
+        B, L, _ = self.embeds.shape  # recompute
+        k_pos = torch.arange(self.start, self.pos)  # (L,)
+        mask = band_mask(k_pos, self.windows, k_pos, self.embeds.dtype)
+        _, cache = self.model.run_backbone(
+            self.embeds,
+            position_ids=k_pos[None].expand(B, L),
+            use_cache=True,
+            attention_mask=mask[None, None].expand(B, 1, L, L),
+        )
+        return cache, L, self.pos

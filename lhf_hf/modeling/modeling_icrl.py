@@ -385,7 +385,9 @@ class ICRLModel(ICRLPreTrainedModel):
         p = counts / counts.sum(-1, keepdim=True).clamp(min=1)  # (n_cls + 1, A) p(a | group)
         return 1.0 / (A * p.flatten()[key])  # (N,)
 
-    def _dynamics_loss(self, out, rewards, next_states, returns, mask, weights=None) -> torch.Tensor:
+    def _dynamics_loss(
+        self, out, rewards, next_states, returns, mask, weights=None
+    ) -> torch.Tensor:
         """Reward loss + next-state loss (cross-entropy per integer coordinate, else MSE) + return MSE.
 
         Squared error is the Gaussian log-likelihood of W_theta in the paper's DICP objective up to

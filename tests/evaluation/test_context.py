@@ -64,3 +64,29 @@ def test_cache_and_recompute_equal_a_full_stream_banded_forward(objective, engin
 def test_unknown_mode():
     with pytest.raises(ValueError, match="unknown context mode 'fast'"):
         Context(_model("ad", 1, 4), mode="fast")
+
+
+@torch.no_grad()
+def test_window_snapshot_is_the_last_append_s_encoding_without_another_forward():
+    """``window`` mode: a planner's snapshot hands over the keys and values the last ``append``
+    computed (no second encoding of the window per planned step), equal to a fresh encoding of the
+    window with positions from 0; extending the snapshot leaves the context's own cache alone."""
+    model = _model("dicp", 2, 3)
+    g = torch.Generator().manual_seed(0)
+    D = model.config.hidden_size
+    ctx = Context(model, mode="window")
+    ctx.append(torch.randn(2, 1, D, generator=g))
+    for _ in range(7):  # more than the window: the oldest tokens are dropped
+        ctx.append(torch.randn(2, 2, D, generator=g), [True, False])
+    calls = []
+    run = model.run_backbone
+    model.run_backbone = lambda *a, **k: calls.append(1) or run(*a, **k)
+    cache, L, pos = ctx.snapshot()
+    assert calls == [] and L == pos == ctx.embeds.shape[1] == ctx.max_tokens
+    _, fresh = run(ctx.embeds, position_ids=torch.arange(L)[None].expand(2, L), use_cache=True)
+    for got, want in zip(cache.layers, fresh.layers, strict=True):
+        torch.testing.assert_close(got.keys, want.keys)
+        torch.testing.assert_close(got.values, want.values)
+    run(torch.randn(2, 3, D, generator=g), backbone_cache=cache, use_cache=True,
+        position_ids=torch.arange(L, L + 3)[None].expand(2, 3))  # fmt: skip
+    assert ctx.cache.layers[0].keys.shape[2] == L  # the context's cache did not grow
