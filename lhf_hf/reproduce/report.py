@@ -128,7 +128,13 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "## Provenance",
         "",
         f"{len(summary['stages'])} stages ({cached} from cache), {ran:.0f} s of stage time in this call"
-        f" ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once); created {summary['created']}. Versions: "
+        f" ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once)"
+        + (
+            f"; all stages, whichever call ran them: {summary['stage_s'] / 3600:.2f} h of stage time"
+            if "stage_s" in summary
+            else ""
+        )
+        + f"; created {summary['created']}. Versions: "
         + ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
         + ".",
         "",

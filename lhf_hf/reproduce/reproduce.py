@@ -32,7 +32,7 @@ from .estimate import collect_cost, data_cost, estimate, eval_cost, render, trai
 from .experiment import Experiment, load_experiment, spec_path
 from .parallel import check_jobs, run_stages, worker_command
 from .report import render_report
-from .stages import Stage, StageRunner
+from .stages import DONE_FILE, Stage, StageRunner
 
 
 def _arms(exp: Experiment) -> list[str]:
@@ -263,6 +263,8 @@ def _run(
         "cells": cells,
         "stages": runner.log,
         "wall_s": wall,
+        # what the whole table cost, whichever call ran each stage (a cached stage's own record)
+        "stage_s": round(sum(_stage_wall(s.path(work)) for s in stages), 1),
         "jobs": jobs,
         "versions": library_versions(["transformers", "accelerate"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -272,6 +274,14 @@ def _run(
     write_text_atomic(render_report(exp, cells, summary, out), report)
     echo(f"[lhf reproduce] report: {report}  ({wall} s)")
     return report
+
+
+def _stage_wall(folder: Path) -> float:
+    """The wall time a finished stage recorded (0 when it recorded none)."""
+    try:
+        return float(json.loads((folder / DONE_FILE).read_text()).get("wall_s") or 0)
+    except (OSError, ValueError):
+        return 0.0
 
 
 def load_summary(out: str | Path) -> dict:

@@ -1,0 +1,76 @@
+"""results/README.md: every table's cells, our E beside the paper's, from their results.json."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lhf_hf.reproduce.index import render_index, write_index
+
+
+def _row(backbone, e, e_std, ci=None, base=4.0, lhf=5.0):
+    return dict(backbone=backbone, E=e, E_std=e_std, E_ci95=ci, baseline_mean=base, lhf_mean=lhf)
+
+
+def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None) -> None:
+    summary = {
+        "experiment": {"name": name, "title": f"Title of {name}", "preset": "cpu", "runs": 3,
+                       "paper": paper},
+        "cells": cells,
+        "created": "2026-12-02T00:00:00+0000",
+    }  # fmt: skip
+    if stage_s is not None:
+        summary["stage_s"] = stage_s
+    (root / f"{name}-cpu").mkdir(parents=True)
+    (root / f"{name}-cpu" / "results.json").write_text(json.dumps(summary))
+
+
+def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_path):
+    _table(tmp_path, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
+        _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
+        _row("DICP + plan", -0.1, 0.5),
+    ]}], {"darkroom": {"ad": 90.7, "dicp": 19.0}}, stage_s=7200)  # fmt: skip
+    _table(tmp_path, "a-main", [{"env_id": "darkroom-large", "arm": "lam2", "rows": [
+        _row("DPT", 0.05, None),
+    ]}], {})  # fmt: skip
+    (tmp_path / "not-a-table").mkdir()
+    text = render_index(tmp_path)
+    # tables in name order, each linking its report
+    assert text.index("(a-main-cpu/report.md)") < text.index("(b-noisy-cpu/report.md)")
+    assert "`lhf reproduce b-noisy --preset cpu --runs 3`; 2.00 h of stage time" in text
+    assert (
+        "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | helps | 4.33 -> 9.51 |" in text
+    )
+    # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
+    assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text
+    # an arm other than lhf is named; no paper value, one run (no std)
+    assert "| darkroom-large (lam2) | DPT | +5.0 | - | - | helps (1 run, no error bar) |" in text
+    assert "not-a-table" not in text
+
+
+def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "results.json").write_text("{not json")
+    text = render_index(tmp_path)
+    assert "## broken" in text and "`results.json` unreadable" in text
+    with pytest.raises(FileNotFoundError, match="no results folder"):
+        render_index(tmp_path / "missing")
+
+
+def test_empty_root_and_the_script_writes_readme(tmp_path):
+    assert "No tables yet" in render_index(tmp_path)
+    _table(tmp_path, "x", [{"env_id": "darkroom", "arm": "lhf", "rows": [_row("AD", 0.1, 0.2)]}],
+           {"darkroom": {"ad": 25.1}})  # fmt: skip
+    assert write_index(tmp_path) == tmp_path / "README.md"
+    script = Path(__file__).parents[2] / "scripts" / "results_index.py"
+    out = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    assert out.stdout.strip() == str(tmp_path / "README.md")
+    assert "| darkroom | AD | +10.0 ± 20.0 | - | +25.1 |" in (tmp_path / "README.md").read_text()
+    bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "none")],
+                         capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode != 0 and "no results folder" in bad.stderr
