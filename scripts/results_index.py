@@ -1,24 +1,41 @@
-"""Render ``results/README.md``: every table ``lhf reproduce`` wrote, our E beside the paper's.
+"""Render ROOT/README.md (default ``results/README.md``): every table ``lhf reproduce`` wrote under
+ROOT, cell by cell, our E beside the paper's.
 
-python scripts/results_index.py [--root results]
+    python scripts/results_index.py [--root results]
+
+Exits 1 when ROOT is missing, 2 when some table's ``results.json`` could not be read (the index is
+still written, naming them).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from lhf_hf.reproduce.index import write_index
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--root", default="results", help="the folder holding one folder per table")
+def main() -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--root",
+        default="results",
+        help="the folder holding one folder per table (default: results, from the current folder)",
+    )
     args = p.parse_args()
     try:
-        print(write_index(args.root))
+        path, bad = write_index(args.root)
     except FileNotFoundError as exc:
-        raise SystemExit(str(exc)) from None
+        print(exc, file=sys.stderr)
+        return 1
+    print(path)
+    if bad:
+        print(f"unreadable results.json in: {', '.join(bad)} (named in {path})", file=sys.stderr)
+        return 2
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

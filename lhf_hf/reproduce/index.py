@@ -4,54 +4,84 @@ Reads the ``results.json`` of every report folder under a root (``lhf reproduce`
 table) and renders, per table: the command and budget, then one row per env x arm x backbone with
 our E (+/- its std over paired runs, and its 95 % confidence interval), the paper's E, the verdict
 (``report.verdict``) and the whole-curve returns without and with LHF; and the stage time the table
-took.  A table whose ``results.json`` cannot be read is listed with the reason, not skipped silently.
+took.  Tables written before a field existed (the interval, the stage time) show ``-`` there.  A
+table whose ``results.json`` cannot be read is listed with the reason, and ``render_index`` returns
+the names of such tables so the caller can say so.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+from urllib.parse import quote
 
 from .report import _objective, _pct, verdict
 
 INDEX_FILE = "README.md"
 
 
-def _ci(row: dict) -> str:
-    ci = row.get("E_ci95")
-    return f"{_pct(ci[0])} .. {_pct(ci[1])}" if ci else "-"
+def _num(x) -> float | None:
+    """A finite float, or None (missing, null, NaN, infinite)."""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _row(label: str, r: dict, paper: dict) -> str:
+    e, std = _num(r.get("E")), _num(r.get("E_std"))
+    ci = r.get("E_ci95")
+    lo, hi = (
+        (_num(ci[0]), _num(ci[1])) if isinstance(ci, list | tuple) and len(ci) == 2 else (None,) * 2
+    )
+    p = _num((paper.get(r.get("env_id", "")) or {}).get(_objective(r["backbone"])))
+    if e is None:  # E undefined (a baseline return of 0) or not recorded
+        judged = "undefined (no finite E)"
+    else:
+        judged = verdict(e, std).replace("|", "\\|")  # a pipe would end the table cell
+    returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
+    return (
+        f"| {label} | {r['backbone']} | {_pct(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
+        f" | {f'{_pct(lo)} .. {_pct(hi)}' if lo is not None and hi is not None else '-'}"
+        f" | {'-' if p is None else f'{p:+.1f}'} | {judged}"
+        f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)} |"
+    )
 
 
 def _table(folder: Path, summary: dict) -> list[str]:
     exp = summary["experiment"]
     paper = exp.get("paper") or {}
-    hours = summary.get("stage_s")
+    title = exp.get("title", exp["name"])
+    report = folder / "report.md"
+    head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
+    hours = _num(summary.get("stage_s"))
+    facts = [f"`lhf reproduce {exp['name']} --preset {exp['preset']} --runs {exp['runs']}`"]
+    facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
+    facts += [str(summary["created"])] if summary.get("created") else []
     lines = [
-        f"## [{exp.get('title', exp['name'])}]({folder.name}/report.md)",
+        f"## {head}",
         "",
-        f"`lhf reproduce {exp['name']} --preset {exp['preset']} --runs {exp['runs']}`"
-        + (f"; {hours / 3600:.2f} h of stage time" if hours else "")
-        + f"; {summary.get('created', '?')}.",
+        "; ".join(facts) + ".",
         "",
         "| env | backbone | E (%) ± std | 95% CI | paper E (%) | verdict | return without -> with LHF |",
         "|---|---|---|---|---|---|---|",
     ]
+    rows = 0
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
-            p = (paper.get(cell["env_id"]) or {}).get(_objective(r["backbone"]))
-            std = f" ± {100 * r['E_std']:.1f}" if r.get("E_std") is not None else ""
-            cell_verdict = verdict(r["E"], r.get("E_std")).replace("|", "\\|")  # a table cell
-            lines.append(
-                f"| {label} | {r['backbone']} | {_pct(r['E'])}{std} | {_ci(r)} | "
-                f"{'-' if p is None else f'{p:+.1f}'} | {cell_verdict} | "
-                f"{r['baseline_mean']:.2f} -> {r['lhf_mean']:.2f} |"
-            )
+            lines.append(_row(label, {**r, "env_id": cell["env_id"]}, paper))
+            rows += 1
+    if not rows:
+        lines = lines[:-2] + ["No cells: the table compared nothing."]
     return lines + [""]
 
 
-def render_index(root: str | Path) -> str:
-    """The index of every ``*/results.json`` under ``root`` (one table each), as markdown."""
+def render_index(root: str | Path) -> tuple[str, list[str]]:
+    """The index of every ``*/results.json`` under ``root`` (one table each), as markdown, and the
+    names of the tables whose ``results.json`` could not be read."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
@@ -62,23 +92,27 @@ def render_index(root: str | Path) -> str:
         "Every table `lhf reproduce` wrote under this folder (`scripts/results_index.py` renders this "
         "page from their `results.json`). E = (whole-curve mean return with LHF - without) / without, "
         "averaged over paired runs; ± is its std over the runs, the interval the 95% confidence "
-        "interval of the mean (Student t). The verdict counts an effect only when |E| exceeds its std.",
+        "interval of the mean (Student t; `-` for tables made before it was recorded). The verdict "
+        "counts an effect only when |E| exceeds its std.",
         "",
     ]
     if not folders:
         lines.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
+    bad = []
     for folder in folders:
         try:
             lines += _table(folder, json.loads((folder / "results.json").read_text()))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             lines += [f"## {folder.name}", "", f"`results.json` unreadable: {exc!r}", ""]
-    return "\n".join(lines).rstrip() + "\n"
+            bad.append(folder.name)
+    return "\n".join(lines).rstrip() + "\n", bad
 
 
-def write_index(root: str | Path) -> Path:
-    """Write ``root/README.md`` (atomically) and return its path."""
+def write_index(root: str | Path) -> tuple[Path, list[str]]:
+    """Write ``root/README.md`` (atomically); return its path and the unreadable tables."""
     from lhf_hf.utils.io import write_text_atomic
 
+    text, bad = render_index(root)
     path = Path(root) / INDEX_FILE
-    write_text_atomic(render_index(root), path)
-    return path
+    write_text_atomic(text, path)
+    return path, bad

@@ -111,7 +111,11 @@ def render_model_card(
         tokens=config.max_tokens,
         load_path=load_path,
         label_positions=config.label_positions,
-        xi_phrase=f", xi = {config.dynamics_coef}" if config.objective == "dicp" else "",
+        xi_phrase=(
+            f", xi = {config.dynamics_coef}, reward loss weighting '{config.reward_weighting}'"
+            if config.objective == "dicp"
+            else ""
+        ),
         dataset_path=ds["path"],
         dataset_fingerprint=ds["fingerprint"][:16],
         selection_text=(

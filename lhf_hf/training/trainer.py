@@ -174,8 +174,14 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
     weighting_applies = cfg.objective == "dicp" and discrete and bool(reward_classes)
     if cfg.reward_weighting == "actions" and not weighting_applies:
         raise ValueError(
-            "TrainConfig.reward_weighting='actions' is for DICP on envs with discrete actions and "
-            f"few reward values; {cfg.objective} on {spec.env_id} has none to weigh: use 'data'"
+            "TrainConfig.reward_weighting='actions' weighs DICP's reward-classification loss, on "
+            "envs with discrete actions and few reward values; "
+            + (
+                f"{cfg.objective} has no reward head"
+                if cfg.objective != "dicp"
+                else f"{spec.env_id} has real-valued rewards or actions"
+            )
+            + ": use 'data'"
         )
     weighting = cfg.reward_weighting or ("actions" if weighting_applies else "data")
     return icrl_config(
@@ -328,6 +334,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         "selection": selection,
         "windows": len(windows),
         "sequence_length": length if config.attention == "band" else None,
+        "reward_weighting": config.reward_weighting,  # resolved (``train`` keeps the flag as given)
         "world_size": world,
         "per_device_batch_size": cfg.batch_size // world,
     }

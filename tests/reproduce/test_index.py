@@ -27,6 +27,7 @@ def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None) -> Non
         summary["stage_s"] = stage_s
     (root / f"{name}-cpu").mkdir(parents=True)
     (root / f"{name}-cpu" / "results.json").write_text(json.dumps(summary))
+    (root / f"{name}-cpu" / "report.md").write_text("# report")
 
 
 def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_path):
@@ -38,9 +39,12 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
         _row("DPT", 0.05, None),
     ]}], {})  # fmt: skip
     (tmp_path / "not-a-table").mkdir()
-    text = render_index(tmp_path)
+    (tmp_path / "a-main-cpu" / "report.md").unlink()  # no report: the title is not a link
+    text, bad = render_index(tmp_path)
+    assert bad == []
     # tables in name order, each linking its report
-    assert text.index("(a-main-cpu/report.md)") < text.index("(b-noisy-cpu/report.md)")
+    assert text.index("## Title of a-main") < text.index("## [Title of b-noisy](b-noisy-cpu/")
+    assert "(a-main-cpu/report.md)" not in text
     assert "`lhf reproduce b-noisy --preset cpu --runs 3`; 2.00 h of stage time" in text
     assert (
         "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | helps | 4.33 -> 9.51 |" in text
@@ -55,17 +59,34 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
 def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):
     (tmp_path / "broken").mkdir()
     (tmp_path / "broken" / "results.json").write_text("{not json")
-    text = render_index(tmp_path)
-    assert "## broken" in text and "`results.json` unreadable" in text
+    (tmp_path / "keys").mkdir()
+    (tmp_path / "keys" / "results.json").write_text("[]")
+    text, bad = render_index(tmp_path)
+    assert bad == ["broken", "keys"]
+    assert "## broken" in text and "`results.json` unreadable: JSONDecodeError" in text
     with pytest.raises(FileNotFoundError, match="no results folder"):
         render_index(tmp_path / "missing")
 
 
+def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
+    _table(tmp_path, "one run", [{"env_id": "darkroom", "arm": "lhf", "rows": [
+        _row("AD", None, None, base=0.0, lhf=1.0),
+        _row("DPT", float("inf"), float("nan")),
+    ]}], {})  # fmt: skip
+    _table(tmp_path, "empty", [], {})
+    text, bad = render_index(tmp_path)
+    assert bad == []
+    assert "| darkroom | AD | - | - | - | undefined (no finite E) | 0.00 -> 1.00 |" in text
+    assert "| darkroom | DPT | - | - | - | undefined (no finite E) | 4.00 -> 5.00 |" in text
+    assert "](one%20run-cpu/report.md)" in text  # a link that works with a space in the name
+    assert "No cells: the table compared nothing." in text
+
+
 def test_empty_root_and_the_script_writes_readme(tmp_path):
-    assert "No tables yet" in render_index(tmp_path)
+    assert "No tables yet" in render_index(tmp_path)[0]
     _table(tmp_path, "x", [{"env_id": "darkroom", "arm": "lhf", "rows": [_row("AD", 0.1, 0.2)]}],
            {"darkroom": {"ad": 25.1}})  # fmt: skip
-    assert write_index(tmp_path) == tmp_path / "README.md"
+    assert write_index(tmp_path) == (tmp_path / "README.md", [])
     script = Path(__file__).parents[2] / "scripts" / "results_index.py"
     out = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
                          capture_output=True, text=True, check=True)  # fmt: skip
@@ -73,4 +94,10 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
     assert "| darkroom | AD | +10.0 ± 20.0 | - | +25.1 |" in (tmp_path / "README.md").read_text()
     bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "none")],
                          capture_output=True, text=True)  # fmt: skip
-    assert bad.returncode != 0 and "no results folder" in bad.stderr
+    assert bad.returncode == 1 and "no results folder" in bad.stderr
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "results.json").write_text("{")
+    bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
+                         capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 2 and "unreadable results.json in: broken" in bad.stderr
+    assert "## broken" in (tmp_path / "README.md").read_text()  # written all the same

@@ -87,8 +87,11 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     # the resolved sequence length is recorded, so resuming with it written out is the same run
     prov = json.loads((out / "train_config.json").read_text())
     assert prov["sequence_length"] == 160
+    # so is the reward weighting (DICP on Darkroom: 'actions'); the flag is kept as given
+    assert prov["reward_weighting"] == "actions" and prov["train"]["reward_weighting"] is None
     card = (out / "README.md").read_text()  # the card says how it was trained and evaluated
     assert "sequences of 160 transitions, band attention over the last 40" in card
+    assert "reward loss weighting 'actions'" in card
     assert "| no | cache |" in card and "context cache" in card
     explicit = TrainConfig(dataset=str(learned_darkroom.root), objective="dicp", out=str(out),
                            max_steps=40, attention="band", sequence_length=160, resume=True,
@@ -96,6 +99,10 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     train(explicit)  # nothing left to do, but the identity check passes
     with pytest.raises(ValueError, match="sequence_length: 160 -> 120"):
         train(dataclasses.replace(explicit, sequence_length=120))
+    # the unset weighting and 'actions' written out are one run; 'data' is another
+    train(dataclasses.replace(explicit, reward_weighting="actions"))
+    with pytest.raises(ValueError, match="reward_weighting: 'actions' -> 'data'"):
+        train(dataclasses.replace(explicit, reward_weighting="data"))
 
 
 def test_selection_counts_weight_the_windows(small_darkroom, tmp_path):
@@ -167,13 +174,13 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
             TrainConfig(objective="ad", state_encoding="cells", **base),
             has_optimal=False,
         )
-    with pytest.raises(ValueError, match="reward_weighting='actions' is for DICP"):
+    with pytest.raises(ValueError, match="metaworld-reach has real-valued rewards or actions"):
         model_config_for(
             get_spec("metaworld-reach"),
             TrainConfig(objective="dicp", reward_weighting="actions", **base),
             has_optimal=False,
         )
-    with pytest.raises(ValueError, match="reward_weighting='actions' is for DICP"):
+    with pytest.raises(ValueError, match="'actions' weighs DICP's .* ad has no reward head"):
         model_config_for(
             get_spec("darkroom"),
             TrainConfig(objective="ad", reward_weighting="actions", **base),
