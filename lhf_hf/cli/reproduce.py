@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     if o.estimate:
         from lhf_hf.reproduce import estimate_experiment  # deferred: heavy, as above
 
-        print(estimate_experiment(o.experiment, o.preset, o.runs, o.work, o.jobs))
+        print(estimate_experiment(o.experiment, o.preset, o.runs, o.work, o.jobs, o.objectives))
         return 0
-    reproduce(o.experiment, o.preset, o.runs, o.out, o.work, jobs=o.jobs)
+    reproduce(o.experiment, o.preset, o.runs, o.out, o.work, jobs=o.jobs, objectives=o.objectives)
     return 0

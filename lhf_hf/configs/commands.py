@@ -115,6 +115,9 @@ class ReproduceOptions:
         finish 1.3x sooner); 1 = one after the other in this process.
     estimate: run nothing; print the stages, which are cached, and the estimated time of the rest
         on this machine (from the rates that finished stages recorded, or the shipped reference).
+    objectives: only these of the spec's backbones (e.g. ``dicp``); their stages are the full
+        table's, so a later full run reuses them; the report (default ``results/NAME-PRESET-dicp``)
+        covers only them.  Unset: all.
     """
 
     experiment: str
@@ -124,6 +127,7 @@ class ReproduceOptions:
     work: str = "runs/reproduce"
     jobs: int = 1
     estimate: bool = False
+    objectives: list[str] | None = None
 
     def __post_init__(self) -> None:
         if self.jobs < 1:

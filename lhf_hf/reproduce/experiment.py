@@ -84,6 +84,8 @@ class Experiment:
         policy itself learned.
     paper: the paper's E in percent, ``{env: {objective: value}}`` (None where it has none).
     budget: what the preset is, in words, against the paper's sizes (goes into the report).
+    narrowed: the objectives are a subset of the spec's (``load_experiment(objectives=...)``): the
+        stages are the full table's, so a later full run finds them cached.
     """
 
     name: str
@@ -99,6 +101,7 @@ class Experiment:
     paper: dict = field(default_factory=dict)
     paper_table: str = ""
     budget: str = ""
+    narrowed: bool = False
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -234,9 +237,13 @@ def spec_path(name_or_path: str | Path) -> Path:
 
 
 def load_experiment(
-    name_or_path: str, preset: str = "quick", runs: int | None = None
+    name_or_path: str,
+    preset: str = "quick",
+    runs: int | None = None,
+    objectives: list[str] | tuple[str, ...] | None = None,
 ) -> Experiment:
-    """Read ``lhf_hf/reproduce/experiments/NAME.yaml`` (or a yaml path) at ``preset``."""
+    """Read ``lhf_hf/reproduce/experiments/NAME.yaml`` (or a yaml path) at ``preset``;
+    ``objectives``: only these of the spec's backbones (None: all)."""
     path = spec_path(name_or_path)
     try:
         spec = yaml.safe_load(path.read_text()) or {}
@@ -262,7 +269,7 @@ def load_experiment(
             raise ValueError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
     if runs is not None:
         merged["runs"] = int(runs)
-    return Experiment(
+    exp = Experiment(
         name=path.stem,
         title=merged.pop("title", path.stem),
         preset=preset,
@@ -271,3 +278,13 @@ def load_experiment(
         paper=paper,
         **merged,
     )
+    if objectives is None or set(objectives) == set(exp.objectives):
+        return exp
+    unknown = sorted(set(objectives) - set(exp.objectives))
+    if unknown or not objectives:
+        raise ValueError(
+            f"{exp.name} has no backbone {unknown[0] if unknown else '(none given)'!r}: "
+            f"choose among {list(exp.objectives)}"
+        )
+    keep = tuple(o for o in exp.objectives if o in objectives)  # the spec's order
+    return dataclasses.replace(exp, objectives=keep, narrowed=True)

@@ -45,7 +45,9 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines = [
         f"# {exp.title}",
         "",
-        f"`lhf reproduce {exp.name} --preset {exp.preset} --runs {exp.runs}`: "
+        f"`lhf reproduce {exp.name} --preset {exp.preset} --runs {exp.runs}"
+        + (f" --objectives {' '.join(exp.objectives)}" if exp.narrowed else "")
+        + "`: "
         f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
         f"tasks per run). Paper: {exp.paper_table or '-'}.",
         "",

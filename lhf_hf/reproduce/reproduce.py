@@ -158,15 +158,18 @@ def reproduce(
     work: str | Path = "runs/reproduce",
     echo=print,
     jobs: int = 1,
+    objectives: list[str] | None = None,
 ) -> Path:
     """Run experiment ``name`` at ``preset``; returns the path of ``report.md``.
 
     jobs: stages run at once; above 1 each runs in its own process with one thread
         (``parallel.py``; 1.3x on 2 cores for trainings).
+    objectives: only these of the spec's backbones (None: all); the report is then named after
+        them (``results/NAME-PRESET-dicp``) and a later full run reuses their stages.
     """
     check_jobs(jobs)
-    exp = load_experiment(name, preset, runs)
-    out = Path(out or f"results/{exp.name}-{preset}")
+    exp = load_experiment(name, preset, runs, objectives)
+    out = Path(out or default_out(exp))
     work = Path(work)
     stages, evals = plan_stages(exp, work)
     echo(
@@ -187,21 +190,35 @@ def reproduce(
             jobs > 1
         ):  # the children plan from a copy: an edit of the spec meanwhile cannot reach them
             command = worker_command(
-                snapshot_spec(name, preset, runs, exp, work), preset, exp.runs, work
+                snapshot_spec(name, preset, runs, exp, work, objectives), preset, exp.runs, work
             )
         return _run(exp, stages, evals, work, out, echo, jobs, command)
 
 
-def snapshot_spec(name: str, preset: str, runs: int | None, exp: Experiment, work: Path) -> Path:
+def default_out(exp: Experiment) -> str:
+    """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed."""
+    tail = "-" + "-".join(exp.objectives) if exp.narrowed else ""
+    return f"results/{exp.name}-{exp.preset}{tail}"
+
+
+def snapshot_spec(
+    name: str,
+    preset: str,
+    runs: int | None,
+    exp: Experiment,
+    work: Path,
+    objectives: list[str] | None = None,
+) -> Path:
     """A copy of the spec file under ``work/specs/<hash>/`` (same file name, so the same
-    experiment name), checked to load as the experiment this call planned."""
+    experiment name), checked to load as the experiment this call planned.  The children plan the
+    whole spec and run their stage by its hash, which a narrowed plan shares with the full one."""
     path = spec_path(name)
     text = path.read_bytes()
     copy = work / "specs" / hashlib.sha256(text).hexdigest()[:12] / path.name
     if not copy.exists():
         copy.parent.mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(text, copy)
-    if load_experiment(str(copy), preset, runs) != exp:
+    if load_experiment(str(copy), preset, runs, objectives) != exp:
         raise RuntimeError(f"the spec {name!r} changed while this run was starting: run it again")
     return copy
 
@@ -212,11 +229,12 @@ def estimate_experiment(
     runs: int | None = None,
     work: str | Path = "runs/reproduce",
     jobs: int = 1,
+    objectives: list[str] | None = None,
 ) -> str:
     """``lhf reproduce ... --estimate``: the stages, which are cached, and the time the rest takes
     on this machine (``estimate.py``), as text; runs nothing."""
     check_jobs(jobs)
-    exp = load_experiment(name, preset, runs)
+    exp = load_experiment(name, preset, runs, objectives)
     stages, _ = plan_stages(exp, Path(work))
     est = estimate(stages, work, jobs)
     head = (

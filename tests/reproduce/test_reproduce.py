@@ -286,3 +286,32 @@ def test_half_histories_and_sweep_arms(tmp_path):
     assert sorted(c["arm"] for c in summary["cells"]) == ["lam=0", "lam=1000"]
     text = report.read_text()
     assert "| darkroom (lam=0) |" in text and "| darkroom (lam=1000) |" in text
+
+
+def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys):
+    """``objectives``: only those backbones' stages, with the same hashes as in the full plan (a
+    later full run finds them cached), the report named after them; an unknown one fails early."""
+    from lhf_hf.reproduce.reproduce import default_out, plan_stages
+
+    full = load_experiment("darkroom-main", "cpu", 3)
+    dicp = load_experiment("darkroom-main", "cpu", 3, objectives=["dicp"])
+    assert dicp.objectives == ("dicp",) and dicp.narrowed and not full.narrowed
+    assert load_experiment("darkroom-main", "cpu", 3, ["dpt", "ad", "dicp"]) == full  # all = full
+    assert load_experiment("darkroom-main", "cpu", 3, ["dpt", "ad"]).objectives == ("ad", "dpt")
+    work = tmp_path / "w"
+    all_stages = {s.hash: s for s in plan_stages(full, work)[0]}
+    some = plan_stages(dicp, work)[0]
+    assert {s.hash for s in some} <= set(all_stages)
+    trained = [s.config["objective"] for s in some if s.kind == "train"]
+    assert trained == ["dicp"] * 6  # 3 runs x (baseline, LHF)
+    assert sum(s.kind == "evaluate" for s in some) == 12  # each with and without planning
+    assert default_out(dicp) == "results/darkroom-main-cpu-dicp"
+    assert default_out(full) == "results/darkroom-main-cpu"
+    with pytest.raises(ValueError, match="darkroom-main has no backbone 'bc': choose among"):
+        load_experiment("darkroom-main", "cpu", objectives=["bc"])
+    # the quick preset narrows the spec to AD: the error names what this preset has
+    assert main(["reproduce", "darkroom-noisy", "--objectives", "dicp", "--estimate"]) == 1
+    assert "darkroom-noisy has no backbone 'dicp': choose among ['ad']" in capsys.readouterr().err
+    assert main(["reproduce", "darkroom-noisy", "--preset", "cpu", "--objectives", "dicp",
+                 "--work", str(work), "--estimate"]) == 0  # fmt: skip
+    assert "1 backbone(s), 24 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 4)
