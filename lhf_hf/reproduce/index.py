@@ -16,6 +16,8 @@ import math
 from pathlib import Path
 from urllib.parse import quote
 
+from lhf_hf.utils.io import write_text_atomic
+
 from .report import _objective, _pct, verdict
 
 INDEX_FILE = "README.md"
@@ -110,8 +112,6 @@ def render_index(root: str | Path) -> tuple[str, list[str]]:
 
 def write_index(root: str | Path) -> tuple[Path, list[str]]:
     """Write ``root/README.md`` (atomically); return its path and the unreadable tables."""
-    from lhf_hf.utils.io import write_text_atomic
-
     text, bad = render_index(root)
     path = Path(root) / INDEX_FILE
     write_text_atomic(text, path)
