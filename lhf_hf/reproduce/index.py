@@ -59,7 +59,10 @@ def _table(folder: Path, summary: dict) -> list[str]:
     report = folder / "report.md"
     head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
     hours = _num(summary.get("stage_s"))
-    facts = [f"`lhf reproduce {exp['name']} --preset {exp['preset']} --runs {exp['runs']}`"]
+    narrowed = f" --objectives {' '.join(exp['objectives'])}" if exp.get("narrowed") else ""
+    facts = [
+        f"`lhf reproduce {exp['name']} --preset {exp['preset']} --runs {exp['runs']}{narrowed}`"
+    ]
     facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
     facts += [str(summary["created"])] if summary.get("created") else []
     lines = [
