@@ -182,6 +182,8 @@ def test_functions_behind_the_commands_have_the_same_defaults():
     assert same(output, run_filter) == 2
     assert same(commands.FilterInputs, run_filter) == 1
     assert same(commands.PushOptions, push, {"message": "commit_message"}) == 4
-    assert same(commands.ReproduceOptions, reproduce, {"experiment": "name"}) == 6  # + jobs, objectives
+    assert (
+        same(commands.ReproduceOptions, reproduce, {"experiment": "name"}) == 6
+    )  # + jobs, objectives
     assert same(commands.EnvsOptions, env_rows) == 3
     assert same(commands.CompareOptions, compare) == 2

@@ -68,6 +68,15 @@ def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):
         render_index(tmp_path / "missing")
 
 
+def test_index_names_a_narrowed_table_s_command(tmp_path):
+    _table(tmp_path, "n", [], {})
+    path = tmp_path / "n-cpu" / "results.json"
+    summary = json.loads(path.read_text())
+    summary["experiment"].update(narrowed=True, objectives=["dicp"])
+    path.write_text(json.dumps(summary))
+    assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`" in render_index(tmp_path)[0]
+
+
 def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
     _table(tmp_path, "one run", [{"env_id": "darkroom", "arm": "lhf", "rows": [
         _row("AD", None, None, base=0.0, lhf=1.0),
