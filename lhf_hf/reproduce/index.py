@@ -18,7 +18,7 @@ from urllib.parse import quote
 
 from lhf_hf.utils.io import write_text_atomic
 
-from .report import _objective, _pct, verdict
+from .report import _objective, _pct, command_line, verdict
 
 INDEX_FILE = "README.md"
 
@@ -32,13 +32,13 @@ def _num(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _row(label: str, r: dict, paper: dict) -> str:
+def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
     ci = r.get("E_ci95")
     lo, hi = (
         (_num(ci[0]), _num(ci[1])) if isinstance(ci, list | tuple) and len(ci) == 2 else (None,) * 2
     )
-    p = _num((paper.get(r.get("env_id", "")) or {}).get(_objective(r["backbone"])))
+    p = _num((paper.get(env_id) or {}).get(_objective(r["backbone"])))
     if e is None:  # E undefined (a baseline return of 0) or not recorded
         judged = "undefined (no finite E)"
     else:
@@ -59,10 +59,8 @@ def _table(folder: Path, summary: dict) -> list[str]:
     report = folder / "report.md"
     head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
     hours = _num(summary.get("stage_s"))
-    narrowed = f" --objectives {' '.join(exp['objectives'])}" if exp.get("narrowed") else ""
-    facts = [
-        f"`lhf reproduce {exp['name']} --preset {exp['preset']} --runs {exp['runs']}{narrowed}`"
-    ]
+    narrowed = exp["objectives"] if exp.get("narrowed") else None
+    facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed)}`"]
     facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
     facts += [str(summary["created"])] if summary.get("created") else []
     lines = [
@@ -77,7 +75,7 @@ def _table(folder: Path, summary: dict) -> list[str]:
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
-            lines.append(_row(label, {**r, "env_id": cell["env_id"]}, paper))
+            lines.append(_row(label, cell["env_id"], r, paper))
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]

@@ -23,6 +23,13 @@ def verdict(e: float, e_std: float | None) -> str:
     return "no clear effect (|E| within its std)"
 
 
+def command_line(name: str, preset: str, runs: int, narrowed_to=None) -> str:
+    """The ``lhf reproduce`` call that makes a table (``narrowed_to``: its objectives when only
+    some of the spec's were run)."""
+    tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
+    return f"lhf reproduce {name} --preset {preset} --runs {runs}{tail}"
+
+
 def _objective(backbone: str) -> str:
     return backbone.split()[0].lower()
 
@@ -45,9 +52,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines = [
         f"# {exp.title}",
         "",
-        f"`lhf reproduce {exp.name} --preset {exp.preset} --runs {exp.runs}"
-        + (f" --objectives {' '.join(exp.objectives)}" if exp.narrowed else "")
-        + "`: "
+        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None)}`: "
         f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
         f"tasks per run). Paper: {exp.paper_table or '-'}.",
         "",
