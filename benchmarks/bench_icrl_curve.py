@@ -2,7 +2,7 @@
 
     python benchmarks/bench_icrl_curve.py --dataset data/dr50 [--objectives ad dpt dicp]
         [--minutes 15] [--every 2.5] [--episodes 50] [--seeds 0 1 2] [--lr 3e-3]
-        [--out results/train/icrl_curve]
+        [--plan] [--out results/train/icrl_curve]
 
 Trains each objective on ``--dataset`` (``lhf train``'s Trainer, the given settings) for
 ``--minutes`` of wall time, saving a checkpoint every ``--every`` minutes of training (a wall-clock
@@ -10,7 +10,9 @@ callback; the saves and the evaluations are not counted as training time).  Then
 is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
 empty context, one rollout per seed, each model with its own context semantics) and the mean return
 of the last 10 episodes is plotted against the training minutes, with the published levels (DICP
-paper, Darkroom: AD ~12.5, DICP ~15; issue 23's DPT target 14) as lines.  Writes ``curve.json`` and
+paper, Darkroom: AD ~12.5, DICP ~15; issue 23's DPT target 14) as lines.  With ``--plan`` every DICP
+checkpoint is also evaluated with planning (the same seeds, the learned dynamics): the DICP paper's
+level 15 is DICP *with* planning, and whether planning helps depends on how far the model trained.  Writes ``curve.json`` and
 ``curve.png`` to ``--out``; the checkpoints go to a new folder under ``--work`` (nothing is deleted).
 """
 
@@ -61,15 +63,29 @@ class WallClockCheckpoints(TrainerCallback):
             control.should_training_stop = True
 
 
-def evaluate_checkpoint(path: Path, tasks, split_seed: int, episodes: int, seeds) -> dict:
+def evaluate_checkpoint(
+    path: Path, tasks, split_seed: int, episodes: int, seeds, plan: bool = False
+) -> dict:
     model = load_model(str(path))
     last10, whole = [], []
     for seed in seeds:
         batch = make_task_batch(model.config.env_id, tasks, split_seed, seed)
-        res = rollout(model, batch, episodes, seed=seed, progress=False)
+        res = rollout(model, batch, episodes, seed=seed, plan=plan, progress=False)
         last10.append(float(res.returns[:, -10:].mean()))
         whole.append(float(res.returns.mean()))
     return {"last10": last10, "whole_curve": whole, "context": res.context}
+
+
+def _command_flags(args: dict) -> str:
+    """The flags that reproduce ``args`` (a switch is written only when it is on)."""
+    flags = []
+    for k, v in args.items():
+        flag = f"--{k.replace('_', '-')}"
+        if isinstance(v, bool):
+            flags += [flag] if v else []
+        else:
+            flags.append(f"{flag} {' '.join(map(str, v)) if isinstance(v, list) else v}")
+    return " ".join(flags)
 
 
 def main() -> None:
@@ -86,17 +102,15 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=3e-3)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--preset", default="paper")
+    p.add_argument("--plan", action="store_true",
+                   help="also evaluate DICP checkpoints with planning")  # fmt: skip
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
     args = p.parse_args()
     if args.every <= 0 or args.minutes < args.every:
         raise SystemExit("error: need 0 < --every <= --minutes")
     results = {
-        "command": "python benchmarks/bench_icrl_curve.py "
-        + " ".join(
-            f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
-            for k, v in vars(args).items()
-        ),
+        "command": "python benchmarks/bench_icrl_curve.py " + _command_flags(vars(args)),
         "machine": platform.processor() or platform.machine(),
         "torch_threads": torch.get_num_threads(),
         "versions": library_versions(["torch", "transformers"]),
@@ -122,6 +136,9 @@ def main() -> None:
         for step, trained_s in clock.marks:
             ev = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
                                      args.episodes, args.seeds)  # fmt: skip
+            if args.plan and objective == "dicp":
+                ev["plan"] = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
+                                                 args.episodes, args.seeds, plan=True)  # fmt: skip
             points.append({"step": step, "minutes": round(trained_s / 60, 2), **ev})
             print(objective, points[-1], flush=True)
         results["objectives"][objective] = {"tasks": tasks, "points": points}
@@ -142,6 +159,10 @@ def plot(results: dict, path: Path, episodes: int) -> None:
         y = np.array([pt["last10"] for pt in r["points"]])  # (checkpoints, seeds)
         ax.errorbar(x, y.mean(1), yerr=y.std(1), color=colour, marker="o", capsize=3,
                     label=objective.upper())  # fmt: skip
+        if all("plan" in pt for pt in r["points"]):  # DICP with planning, same checkpoints
+            yp = np.array([pt["plan"]["last10"] for pt in r["points"]])  # (checkpoints, seeds)
+            ax.errorbar(x, yp.mean(1), yerr=yp.std(1), color=colour, marker="s", ls=":",
+                        capsize=3, label=f"{objective.upper()} + plan")  # fmt: skip
         ax.axhline(LEVELS[objective], color=colour, ls="--", lw=0.8)
     ax.set_xlabel("training wall time (minutes, 2-core CPU)")
     ax.set_ylabel(f"return, episodes {episodes - 9}-{episodes} (unseen goals)")
