@@ -1,9 +1,10 @@
 """Batched collector vs the SB3 collector on the same machine in one run (issue: batched PPO >= 50x).
 
-    python benchmarks/bench_collect_ratio.py [--env darkroom] [--sb3-tasks 2] [--json OUT]
+    python benchmarks/bench_collect_ratio.py [--env darkroom] [--sb3-tasks 2] [--ppo-backend auto]
+        [--json OUT]
 
 Runs, back to back: the batched collector on the env's full paper dataset (every task x 100
-histories x 1,000 transitions, default ``ppo_backend``), the SB3 collector on ``--sb3-tasks`` tasks
+histories x 1,000 transitions, ``--ppo-backend``: ``auto`` measures which is faster here), the SB3 collector on ``--sb3-tasks`` tasks
 with 2 workers (its rate is linear in tasks: one learner per task), then the batched collector
 again, so that a drift of this shared machine's speed hits both sides.  The ratio is the mean of the
 two batched rates over the SB3 rate.  Writing the dataset is included on both sides.
@@ -13,13 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import tempfile
 import time
 
 import torch
 
-from lhf_hf.collection import collect
+from lhf_hf.collection import backend_verdict, collect
 from lhf_hf.configs import CollectConfig
 
 
@@ -44,9 +44,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env", default="darkroom")
     p.add_argument("--sb3-tasks", type=int, default=2)
+    p.add_argument("--ppo-backend", default="auto", choices=["auto", "kernel", "torch"])
     p.add_argument("--json")
     args = p.parse_args()
-    batched = lambda: CollectConfig(args.env, collector="batched")  # noqa: E731
+    batched = lambda: CollectConfig(args.env, collector="batched", ppo_backend=args.ppo_backend)  # noqa: E731
     sb3_tasks = ",".join(str(t) for t in range(args.sb3_tasks))
     rows = [run(batched())]
     print(rows[-1], flush=True)
@@ -64,7 +65,7 @@ def main() -> None:
         "sb3_transitions_per_s": rows[1]["transitions_per_s"],
         "ratio": round(b / rows[1]["transitions_per_s"], 2),
         "torch": torch.__version__,
-        "machine": platform.processor() or platform.machine(),
+        "machine": backend_verdict.machine(),  # CPU model, instruction set, the kernel's -march
         "cores": torch.get_num_threads(),
     }
     print(f"batched / SB3 = {out['ratio']}x")

@@ -23,6 +23,7 @@ import time
 
 import torch
 
+from lhf_hf.collection import backend_verdict
 from lhf_hf.collection.batched_ppo import Rollout, StackedPolicy, make_optimizer
 from lhf_hf.collection.ppo_backends import ppo_update
 
@@ -154,6 +155,7 @@ def main() -> None:
         "device": str(DEVICE)
         + (f" ({torch.cuda.get_device_name(DEVICE)})" if DEVICE.type == "cuda" else ""),
         "torch": torch.__version__,
+        **({"machine": backend_verdict.machine()} if DEVICE.type == "cpu" else {}),
         "step_ms": best,
         "all_ms": times,
         "speedup": best["autograd"] / best["manual"],

@@ -60,7 +60,14 @@ def instruction_set() -> str:
 
 
 def machine() -> dict:
-    return {"cpu": cpu_model(), "isa": instruction_set(), "threads": torch.get_num_threads()}
+    """The CPU, its widest vector extension, the kernel's ``-march`` (``native`` unless another
+    instruction set's path was asked for, ``native.target_march``) and torch's threads."""
+    return {
+        "cpu": cpu_model(),
+        "isa": instruction_set(),
+        "kernel_march": native.target_march(),
+        "threads": torch.get_num_threads(),
+    }
 
 
 def _verdict_path(obs_dim: int, num_actions: int) -> Path:

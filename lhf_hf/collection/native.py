@@ -3,7 +3,8 @@
 The kernel is compiled on first use with the system's C++ compiler (``$CXX`` or ``g++``; ``-O3
 -march=native``, so it must be built on the machine that runs it) into a per-user cache
 (``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags, the
-compiler's version and what ``-march=native`` means on this CPU (the compiler's expansion of it);
+compiler's version and what ``-march=native`` means on this CPU (the compiler's expansion of it;
+``$LHF_HF_KERNEL_MARCH`` builds another instruction set's path, see :func:`target_march`);
 the file is written under a temporary name and renamed, so concurrent builds are safe.  A library
 is loaded only from a private cache (owned by this user, writable by nobody else) and only when its
 SHA-256 equals the one recorded when it was built: a missing, truncated, corrupt or foreign file is
@@ -23,6 +24,7 @@ import functools
 import hashlib
 import logging
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -39,7 +41,6 @@ SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
 ABI_VERSION = 1
 FLAGS = (
     "-O3",
-    "-march=native",
     "-std=gnu++17",
     "-fPIC",
     "-shared",
@@ -99,10 +100,19 @@ def private_cache_dir() -> Path:
     return path
 
 
-def _native_target(cxx: str) -> str:
-    """The compiler's expansion of ``-march=native`` (CPU model and every enabled feature)."""
+def target_march() -> str:
+    """The ``-march`` the kernel is built for: ``$LHF_HF_KERNEL_MARCH`` or ``native``.
+
+    Another value builds another instruction set's code path on this CPU (e.g. ``haswell``, AVX2 +
+    FMA, on an AVX-512 machine) to test and measure it where no such CPU is at hand; it is read at
+    a process's first build (which refuses a value that is not a ``-march`` name)."""
+    return os.environ.get("LHF_HF_KERNEL_MARCH", "native")
+
+
+def _native_target(cxx: str, march: str = "native") -> str:
+    """The compiler's expansion of ``-march=MARCH`` (CPU model and every enabled feature)."""
     proc = subprocess.run(
-        [cxx, "-march=native", "-Q", "--help=target"], capture_output=True, text=True
+        [cxx, f"-march={march}", "-Q", "--help=target"], capture_output=True, text=True
     )
     return proc.stdout
 
@@ -133,11 +143,20 @@ def build(hidden: int = 64) -> Path:
             f"the kernel needs a hidden width that is a multiple of 16, got {hidden}"
         )
     cxx = _compiler()
+    march = target_march()
+    if not re.fullmatch(r"[A-Za-z0-9_.+-]+", march):
+        raise KernelUnavailable(f"$LHF_HF_KERNEL_MARCH must be a -march name, got {march!r}")
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
-    flags = (*FLAGS, f"-DHID={hidden}")
+    flags = (*FLAGS, f"-march={march}", f"-DHID={hidden}")
     key = hashlib.sha256(
         "\0".join(
-            [SOURCE.read_text(), " ".join(flags), version, os.uname().machine, _native_target(cxx)]
+            [
+                SOURCE.read_text(),
+                " ".join(flags),
+                version,
+                os.uname().machine,
+                _native_target(cxx, march),
+            ]
         ).encode()
     ).hexdigest()[:16]
     out = private_cache_dir() / f"ppo_update-h{hidden}-{key}.so"

@@ -47,7 +47,12 @@ SET_BY_RUN = {
 }
 #: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
 #: how DICP is evaluated.
-STAGE_EXTRAS = {"collect": {"half"}, "filter": {"sweep"}, "evaluate": {"plan_dicp"}}
+STAGE_EXTRAS = {
+    "collect": {"half"},
+    "filter": {"sweep"},
+    "train": {"by_objective"},
+    "evaluate": {"plan_dicp"},
+}
 CONFIGS = {
     "collect": CollectConfig,
     "filter": FilterConfig,
@@ -76,7 +81,9 @@ class Experiment:
         ``half: true`` trains on the first half of every history (``lhf derive half``).
     filter: ``FilterConfig`` fields (``seed`` = the run); ``sweep: {key, values}`` makes one LHF arm
         per value.
-    train: ``TrainConfig`` fields (the data, objective, output and ``seed`` are the run's).
+    train: ``TrainConfig`` fields (the data, objective, output and ``seed`` are the run's);
+        ``by_objective: {objective: {field: value}}`` overrides them for one backbone (e.g. DICP's
+        learned dynamics need more steps than its policy before planning with them pays).
     evaluate: ``EvalConfig`` fields (``seed`` = the run), and ``plan_dicp``: true evaluates DICP
         with planning (the paper's protocol), false without, "both" both ways from the same
         checkpoints, as two backbones "DICP" and "DICP + plan": with a small training budget the
@@ -126,6 +133,21 @@ class Experiment:
                 raise ValueError(
                     f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
                     f"(one of {sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})"
+                )
+        by_objective = self.train.get("by_objective", {})
+        if not isinstance(by_objective, dict) or not all(
+            o in OBJECTIVES and isinstance(v, dict) for o, v in by_objective.items()
+        ):
+            raise ValueError(
+                f"{self.name}: train.by_objective must map backbones ({OBJECTIVES}) to settings"
+            )
+        allowed = {f.name for f in dataclasses.fields(TrainConfig)} - SET_BY_RUN["train"]
+        for objective, settings in by_objective.items():
+            unknown = set(settings) - allowed
+            if unknown:
+                raise ValueError(
+                    f"{self.name}: train.by_objective.{objective}.{sorted(unknown)[0]} is not a "
+                    f"setting of this stage (one of {sorted(allowed)})"
                 )
         sweep = self.filter.get("sweep")
         if sweep is not None and (
@@ -192,6 +214,8 @@ class Experiment:
         out: str,
         resume: bool = False,
     ) -> TrainConfig:
+        settings = {k: v for k, v in self.train.items() if k != "by_objective"}
+        settings.update(self.train.get("by_objective", {}).get(objective, {}))
         return TrainConfig(
             dataset=dataset,
             selection=selection,
@@ -200,7 +224,7 @@ class Experiment:
             seed=run,
             resume=resume,
             overwrite=not resume,
-            **self.train,
+            **settings,
         )
 
     def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:

@@ -44,7 +44,7 @@ def test_the_verdict_is_measured_once_cached_and_honoured(cache, monkeypatch):
     path.write_text(json.dumps({**json.loads(path.read_text()), "choice": "kernel"}))
     assert resolve_ppo_backend(CollectConfig(**KW, ppo_backend="torch")) == "torch"
     # another CPU (another -march=native) is another verdict file
-    monkeypatch.setattr(native, "_native_target", lambda cxx: "-march=znver3")
+    monkeypatch.setattr(native, "_native_target", lambda cxx, march="native": "-march=znver3")
     native.build.cache_clear()
     monkeypatch.setattr(backend_verdict, "measure", lambda *a: {"kernel_ms": 2.0, "torch_ms": 1.0})
     assert backend_verdict.verdict(2, 5)["choice"] == "torch"
@@ -59,4 +59,5 @@ def test_the_collection_records_where_it_ran(cache, tmp_path):
     assert m["ppo_backend"] == ds.lhf["collect"].get("ppo_backend", "torch")
     assert m["ppo_verdict"]["choice"] == m["ppo_backend"]
     assert m["cpu"] and m["isa"] in ("avx512", "avx2", "other")
+    assert m["kernel_march"] == native.target_march()  # native unless $LHF_HF_KERNEL_MARCH says
     assert "machine" not in ds.lhf["collect"]  # not part of the data's identity

@@ -59,7 +59,9 @@ def test_the_kernel_cache_loads_only_what_it_built(tmp_path, monkeypatch):
         native.build(64)
         assert native._verified(path)
         # another CPU (another expansion of -march=native) is another library
-        monkeypatch.setattr(native, "_native_target", lambda cxx: "-march=znver3 -mno-avx512f")
+        monkeypatch.setattr(
+            native, "_native_target", lambda cxx, march="native": "-march=znver3 -mno-avx512f"
+        )
         native.build.cache_clear()
         other = native.build(64)
         assert other != path and native._verified(other)
@@ -91,6 +93,44 @@ def test_tanh_matches_float64_tanh():
     assert float(rel[ref.abs() > 0].max()) < 4e-7  # relative accuracy near 0 too (no cancellation)
     assert torch.equal(torch.sign(y), torch.sign(ref))
     assert float(y.abs().max()) <= 1.0
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = open("/proc/cpuinfo").read()
+    except OSError:
+        return set()
+    return set(
+        next(
+            (ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), []
+        )
+    )
+
+
+@pytest.mark.skipif(not {"avx2", "fma"} <= _cpu_flags(), reason="needs a CPU with AVX2 and FMA")
+def test_the_avx2_path_matches_torch_as_the_native_one(tmp_path, monkeypatch):
+    """The code path of an AVX2-only CPU (8-float vectors, 4 x 2 register blocks), built here with
+    -march=haswell whatever this CPU has: another library, and the same accuracy checks as the
+    native build (tanh, the update against the torch path, seeding independent of threads)."""
+    native.build.cache_clear()
+    native.load.cache_clear()
+    try:
+        monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
+        native_lib = native.build(64)
+        monkeypatch.setenv("LHF_HF_KERNEL_MARCH", "haswell")
+        native.build.cache_clear()
+        assert native.build(64) != native_lib
+        assert native.load(64).lhf_vector_width() == 8
+        test_tanh_matches_float64_tanh()
+        test_kernel_equals_torch_update_over_many_steps()
+        test_kernel_permutations_are_seeded_and_independent_of_threads()
+        monkeypatch.setenv("LHF_HF_KERNEL_MARCH", "native; rm -rf x")  # never reaches a shell
+        native.build.cache_clear()
+        with pytest.raises(native.KernelUnavailable, match="must be a -march name"):
+            native.build(64)
+    finally:
+        native.build.cache_clear()
+        native.load.cache_clear()
 
 
 def _update(gradients, L=3, N=200, epochs=2, batch=25, permutations=None, seed=5, threads=None):

@@ -99,6 +99,13 @@ def test_spec_errors(tmp_path):
         ("train", {"lr": "1e-3"}, r"TrainConfig.lr must be a number, got '1e-3' \(in YAML"),
         ("evaluate", {"split_seed": 5}, "evaluate.split_seed is not a setting"),  # run r: split r
         ("collect", {"ppo": {"nstep": 3}}, "CollectConfig.ppo: unknown setting 'nstep'"),
+        ("train", {"by_objective": {"bc": {"max_steps": 5}}}, "by_objective must map backbones"),
+        ("train", {"by_objective": {"dicp": 5}}, "by_objective must map backbones"),
+        (
+            "train",
+            {"by_objective": {"dicp": {"max_step": 5}}},
+            "by_objective.dicp.max_step is not a setting",
+        ),
     ],
 )
 def test_a_bad_stage_setting_fails_at_load(tmp_path, stage, settings, message):
@@ -140,6 +147,12 @@ def test_stage_configs_take_the_config_defaults(tmp_path):
     tr = exp.train_config("ad", 1, dataset="d", selection=None, out="o")
     assert tr == TrainConfig(dataset="d", objective="ad", out="o", seed=1, overwrite=True,
                              preset="tiny", max_steps=4, batch_size=4, save_steps=4)  # fmt: skip
+    # train.by_objective overrides the shared settings for one backbone only
+    spec = json.loads(json.dumps(TINY))
+    spec["presets"]["quick"]["train"]["by_objective"] = {"dicp": {"max_steps": 8}}
+    per = load_experiment(_spec(tmp_path, spec, "per"), "quick")
+    assert per.train_config("ad", 1, dataset="d", selection=None, out="o") == tr
+    assert per.train_config("dicp", 1, dataset="d", selection=None, out="o").max_steps == 8
     assert exp.eval_config(1, model="m", out="o", plan=False) == EvalConfig(
         model="m", out="o", seed=1, episodes=2, overwrite=True
     )

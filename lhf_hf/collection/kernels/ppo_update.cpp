@@ -29,11 +29,26 @@
 
 namespace {
 
-constexpr int H = HID;     // hidden width (SB3 MlpPolicy: 64)
-constexpr int VW = 16;     // floats per vector (one AVX-512 register; GCC splits it on AVX2)
-constexpr int NV = H / VW; // vectors per hidden row
-static_assert(H % VW == 0, "the hidden width must be a multiple of 16");
-constexpr int RB = 4;      // rows per register block: RB * NV accumulators (16 for H = 64)
+constexpr int H = HID;  // hidden width (SB3 MlpPolicy: 64)
+// Vector width and register blocking per instruction set, chosen at compile time.  A matmul block
+// keeps RB rows x CB vectors of accumulators, the CB vectors of one weight row and one broadcast in
+// registers.  AVX-512 (32 zmm registers of 16 floats): 4 x 4 + 4 + 1 = 21.  AVX2 + FMA (16 ymm
+// registers of 8 floats): 16-float vectors would be split in two by the compiler, so the same block
+// would need 42 registers and spill on every FMA (measured: half the torch path's speed on an AVX2
+// CPU, BENCHMARKS.md); 8-float vectors in 4 x 2 blocks need 4 x 2 + 2 + 1 = 11.  Each output
+// element is accumulated over k in the same order either way.
+#if defined(__AVX512F__)
+constexpr int VW = 16;  // floats per vector: one zmm register
+constexpr int RB = 4;   // rows per register block
+constexpr int CB = 4;   // vectors per register block (H = 64: a whole row)
+#else
+constexpr int VW = 8;   // one ymm register (AVX2); plain SSE builds split it, correct but slow
+constexpr int RB = 4;
+constexpr int CB = 2;
+#endif
+constexpr int NV = H / VW;  // vectors per hidden row
+static_assert(H % 16 == 0, "the hidden width must be a multiple of 16");
+static_assert(NV % CB == 0, "a hidden row is a whole number of register blocks");
 
 typedef float vf __attribute__((vector_size(VW * sizeof(float))));
 typedef int32_t vi __attribute__((vector_size(VW * sizeof(int32_t))));
@@ -46,17 +61,25 @@ inline void vstore(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
 inline vf vset(float x) {
 #if defined(__AVX512F__)
   return (vf)_mm512_set1_ps(x);
+#elif defined(__AVX__)
+  return (vf)_mm256_set1_ps(x);
 #else
   vf v;
   for (int j = 0; j < VW; ++j) v[j] = x;
   return v;
 #endif
 }
-inline float hsum(vf v) {  // tree: 4 shuffle + add levels instead of 15 dependent scalar adds
+inline float hsum(vf v) {  // tree: log2(VW) shuffle + add levels instead of VW - 1 dependent adds
+#if defined(__AVX512F__)
   v += __builtin_shuffle(v, vi{8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7});
   v += __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11});
   v += __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13});
   v += __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14});
+#else
+  v += __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3});
+  v += __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5});
+  v += __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6});
+#endif
   return v[0];
 }
 
@@ -70,6 +93,16 @@ inline vf vrcp(vf x) {
 }
 inline vf vrsqrt(vf x) {
   const vf r = (vf)_mm512_rsqrt14_ps((__m512)x);
+  return r * (1.5f - 0.5f * x * r * r);
+}
+#elif defined(__AVX__)  // (VW is 8: one ymm register; the estimates have 12 bits, so after one
+// Newton-Raphson step ~23: within 2 ulps, like the AVX-512 path's)
+inline vf vrcp(vf x) {
+  const vf r = (vf)_mm256_rcp_ps((__m256)x);
+  return r * (2.f - x * r);
+}
+inline vf vrsqrt(vf x) {
+  const vf r = (vf)_mm256_rsqrt_ps((__m256)x);
   return r * (1.5f - 0.5f * x * r * r);
 }
 #else
@@ -107,7 +140,7 @@ inline vf vtanh(vf x) {
   return r > -1.f ? r : vset(-1.f);
 }
 
-// out (H, H) = in^T, by 16 x 16 blocks, each transposed in registers in 4 stages of two-input
+// out (H, H) = in^T, by VW x VW blocks, each transposed in registers in log2(VW) stages of two-input
 // shuffles (stage g swaps the off-diagonal g x g sub-blocks); a scalar loop took ~2 us per call.
 void transpose(const float* in, float* out) {
   for (int bi = 0; bi < H; bi += VW)
@@ -121,6 +154,7 @@ void transpose(const float* in, float* out) {
       r[i] = __builtin_shuffle(a, b, LO);                    \
       r[i + g] = __builtin_shuffle(a, b, HI);                \
     }
+#if defined(__AVX512F__)
       LHF_STAGE(8, (vi{0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23}),
                 (vi{8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31}))
       LHF_STAGE(4, (vi{0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27}),
@@ -129,6 +163,11 @@ void transpose(const float* in, float* out) {
                 (vi{2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31}))
       LHF_STAGE(1, (vi{0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30}),
                 (vi{1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31}))
+#else
+      LHF_STAGE(4, (vi{0, 1, 2, 3, 8, 9, 10, 11}), (vi{4, 5, 6, 7, 12, 13, 14, 15}))
+      LHF_STAGE(2, (vi{0, 1, 8, 9, 4, 5, 12, 13}), (vi{2, 3, 10, 11, 6, 7, 14, 15}))
+      LHF_STAGE(1, (vi{0, 8, 2, 10, 4, 12, 6, 14}), (vi{1, 9, 3, 11, 5, 13, 7, 15}))
+#endif
 #undef LHF_STAGE
       for (int i = 0; i < VW; ++i) vstore(out + (bj + i) * H + bi, r[i]);
     }
@@ -136,56 +175,62 @@ void transpose(const float* in, float* out) {
 
 enum Epilogue { NONE, TANH, DTANH };
 
-// c[r, :] = epilogue(bias + a[r, :] @ B) for RB_ rows; a (rows, H), B (H, H) row-major.
+// c[r, cols] = epilogue(bias + a[r, :] @ B[:, cols]) for RB_ rows and the CB vectors of columns
+// from col0; a (rows, H), B (H, H) row-major.
 // TANH: c = tanh(.); DTANH: c = (.) * (1 - y^2) with y the forward's tanh output (tanh').
 template <int RB_, Epilogue EP, bool BIAS>
-inline void mm_block(const float* a, const float* B, const float* bias, const float* y, float* c) {
-  vf acc[RB_][NV];
+inline void mm_block(const float* a, const float* B, const float* bias, const float* y, float* c,
+                     int col0) {
+  vf acc[RB_][CB];
   for (int r = 0; r < RB_; ++r)
-    for (int v = 0; v < NV; ++v) acc[r][v] = BIAS ? vload(bias + v * VW) : vf{};
+    for (int v = 0; v < CB; ++v) acc[r][v] = BIAS ? vload(bias + col0 + v * VW) : vf{};
   for (int k = 0; k < H; ++k) {
-    vf w[NV];
-    for (int v = 0; v < NV; ++v) w[v] = vload(B + k * H + v * VW);
+    vf w[CB];
+    for (int v = 0; v < CB; ++v) w[v] = vload(B + k * H + col0 + v * VW);
     for (int r = 0; r < RB_; ++r) {
       const vf s = vset(a[r * H + k]);
-      for (int v = 0; v < NV; ++v) acc[r][v] += s * w[v];
+      for (int v = 0; v < CB; ++v) acc[r][v] += s * w[v];
     }
   }
   for (int r = 0; r < RB_; ++r)
-    for (int v = 0; v < NV; ++v) {
+    for (int v = 0; v < CB; ++v) {
       vf o = acc[r][v];
       if (EP == TANH) o = vtanh(o);
       if (EP == DTANH) {
-        const vf yy = vload(y + r * H + v * VW);
+        const vf yy = vload(y + r * H + col0 + v * VW);
         o = o * (1.f - yy * yy);
       }
-      vstore(c + r * H + v * VW, o);
+      vstore(c + r * H + col0 + v * VW, o);
     }
 }
 
 // C (m, H) = epilogue(bias + A (m, H) @ B (H, H))
 template <Epilogue EP, bool BIAS>
 void mm_nn(int m, const float* a, const float* B, const float* bias, const float* y, float* c) {
-  int i = 0;
-  for (; i + RB <= m; i += RB) mm_block<RB, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H);
-  for (; i < m; ++i) mm_block<1, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H);
+  for (int col0 = 0; col0 < H; col0 += CB * VW) {
+    int i = 0;
+    for (; i + RB <= m; i += RB)
+      mm_block<RB, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
+    for (; i < m; ++i) mm_block<1, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
+  }
 }
 
 // G (H, H) = A^T (H, m) @ D (m, H), and gb (H) = column sums of D: the weight and bias gradients.
 void mm_tn(int m, const float* a, const float* d, float* g, float* gb) {
-  for (int k = 0; k < H; k += RB) {
-    vf acc[RB][NV] = {};
-    for (int i = 0; i < m; ++i) {
-      vf dv[NV];
-      for (int v = 0; v < NV; ++v) dv[v] = vload(d + i * H + v * VW);
-      for (int r = 0; r < RB; ++r) {
-        const vf s = vset(a[i * H + k + r]);
-        for (int v = 0; v < NV; ++v) acc[r][v] += s * dv[v];
+  for (int col0 = 0; col0 < H; col0 += CB * VW)
+    for (int k = 0; k < H; k += RB) {
+      vf acc[RB][CB] = {};
+      for (int i = 0; i < m; ++i) {
+        vf dv[CB];
+        for (int v = 0; v < CB; ++v) dv[v] = vload(d + i * H + col0 + v * VW);
+        for (int r = 0; r < RB; ++r) {
+          const vf s = vset(a[i * H + k + r]);
+          for (int v = 0; v < CB; ++v) acc[r][v] += s * dv[v];
+        }
       }
+      for (int r = 0; r < RB; ++r)
+        for (int v = 0; v < CB; ++v) vstore(g + (k + r) * H + col0 + v * VW, acc[r][v]);
     }
-    for (int r = 0; r < RB; ++r)
-      for (int v = 0; v < NV; ++v) vstore(g + (k + r) * H + v * VW, acc[r][v]);
-  }
   vf sb[NV] = {};
   for (int i = 0; i < m; ++i)
     for (int v = 0; v < NV; ++v) sb[v] += vload(d + i * H + v * VW);
@@ -219,6 +264,7 @@ struct PPOArgs {
 
 int lhf_abi_version() { return 1; }
 int lhf_hidden() { return H; }
+int lhf_vector_width() { return VW; }  // floats per vector: 16 (AVX-512) or 8 (AVX2), for tests
 
 }  // extern "C"
 
