@@ -59,13 +59,14 @@ def instruction_set() -> str:
     return "avx512" if "avx512f" in flags else "avx2" if "avx2" in flags else "other"
 
 
-def machine() -> dict:
-    """The CPU, its widest vector extension, the kernel's ``-march`` (``native`` unless another
-    instruction set's path was asked for, ``native.target_march``) and torch's threads."""
+def machine(kernel: bool = True) -> dict:
+    """The CPU, its widest vector extension, torch's threads and, when the kernel runs
+    (``kernel``), its ``-march`` (``native`` unless another instruction set's path was asked for,
+    ``native.target_march``)."""
     return {
         "cpu": cpu_model(),
         "isa": instruction_set(),
-        "kernel_march": native.target_march(),
+        **({"kernel_march": native.target_march()} if kernel else {}),
         "threads": torch.get_num_threads(),
     }
 

@@ -107,7 +107,9 @@ def lhf_metadata(config: CollectConfig) -> dict:
         "derived_from": None,
         # where it ran: not part of the identity (the data are the same on any such machine)
         "machine": {
-            **backend_verdict.machine(),
+            **backend_verdict.machine(
+                kernel=config.collector == "batched" and config.ppo_backend == "kernel"
+            ),
             **(
                 {"ppo_backend": config.ppo_backend, "ppo_verdict": backend_verdict.last_verdict()}
                 if config.collector == "batched"

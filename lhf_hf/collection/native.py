@@ -105,8 +105,9 @@ def target_march() -> str:
 
     Another value builds another instruction set's code path on this CPU (e.g. ``haswell``, AVX2 +
     FMA, on an AVX-512 machine) to test and measure it where no such CPU is at hand; it is read at
-    a process's first build (which refuses a value that is not a ``-march`` name)."""
-    return os.environ.get("LHF_HF_KERNEL_MARCH", "native")
+    a process's first build (which refuses a value that is not a ``-march`` name); empty is
+    ``native``."""
+    return os.environ.get("LHF_HF_KERNEL_MARCH") or "native"
 
 
 def _native_target(cxx: str, march: str = "native") -> str:
@@ -169,7 +170,10 @@ def build(hidden: int = 64) -> Path:
     try:
         proc = subprocess.run([cxx, *flags, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
         if proc.returncode != 0:
-            raise KernelUnavailable(f"building {SOURCE.name} failed:\n{proc.stderr[-2000:]}")
+            origin = "" if march == "native" else f" for -march={march} ($LHF_HF_KERNEL_MARCH)"
+            raise KernelUnavailable(
+                f"building {SOURCE.name}{origin} failed:\n{proc.stderr[-2000:]}"
+            )
         digest = sha256_file(Path(tmp))
         os.replace(tmp, out)  # atomic: a concurrent build of the same key writes the same bytes
         record = out.with_name(out.name + ".sha256")

@@ -157,8 +157,9 @@ class CollectConfig:
         random draws come from the device's generator, so the data differ from a CPU run's.
     ppo_backend: batched collector on the CPU: how the stacked PPO learners act and learn.
         ``kernel``: the C++ kernel (compiled on first use with the system's g++); ``torch``: torch
-        ops (any device; the only choice on CUDA); ``auto``: ``kernel`` where it builds, else
-        ``torch``.  The two draw their random numbers differently, so the data differ; the
+        ops (any device; the only choice on CUDA); ``auto``: whichever of the two one measured update
+        found faster on this machine (cached per CPU), ``torch`` where the kernel does not build.
+        The two draw their random numbers differently, so the data differ; the
         resolved choice is stored with the dataset.
     """
 

@@ -69,6 +69,23 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
+def _merge_train(top: dict, preset: dict) -> dict:
+    """``train`` = top level <- preset, where a preset's shared setting also replaces what the top
+    level set for one backbone (``by_objective``): the preset is the budget, so e.g. its
+    ``max_steps`` is not undercut by a spec-wide DICP value; the preset's own ``by_objective``
+    applies last (``by_objective: null`` there drops the top level's)."""
+    out = _merge(top, preset)
+    top_by, shared = top.get("by_objective"), set(preset) - {"by_objective"}
+    if isinstance(top_by, dict) and "by_objective" in out and out["by_objective"] is not None:
+        kept = {
+            o: {k: v for k, v in s.items() if k not in shared} if isinstance(s, dict) else s
+            for o, s in top_by.items()
+        }
+        over = preset.get("by_objective", {})
+        out["by_objective"] = _merge(kept, over) if isinstance(over, dict) else over
+    return out
+
+
 @dataclass(frozen=True)
 class Experiment:
     """One paper experiment at one budget preset (``load_experiment(name, preset)``).
@@ -134,15 +151,24 @@ class Experiment:
                     f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
                     f"(one of {sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})"
                 )
-        by_objective = self.train.get("by_objective", {})
-        if not isinstance(by_objective, dict) or not all(
-            o in OBJECTIVES and isinstance(v, dict) for o, v in by_objective.items()
-        ):
+        by_objective = self.train.get("by_objective") or {}  # null: none (a preset may cancel)
+        if not isinstance(by_objective, dict):
             raise ValueError(
-                f"{self.name}: train.by_objective must map backbones ({OBJECTIVES}) to settings"
+                f"{self.name}: train.by_objective must map backbones ({', '.join(OBJECTIVES)}) "
+                f"to settings, got {by_objective!r}"
             )
         allowed = {f.name for f in dataclasses.fields(TrainConfig)} - SET_BY_RUN["train"]
         for objective, settings in by_objective.items():
+            if objective not in OBJECTIVES:
+                raise ValueError(
+                    f"{self.name}: train.by_objective: {objective!r} is not a backbone "
+                    f"(one of {', '.join(OBJECTIVES)})"
+                )
+            if not isinstance(settings, dict):
+                raise ValueError(
+                    f"{self.name}: train.by_objective.{objective} must be a mapping of "
+                    f"TrainConfig settings, got {settings!r}"
+                )
             unknown = set(settings) - allowed
             if unknown:
                 raise ValueError(
@@ -154,18 +180,23 @@ class Experiment:
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
         ):
             raise ValueError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
+        shared = {k: v for k, v in self.train.items() if k != "by_objective"}
         # Every config of every stage, built now: a bad value fails before anything runs, and
         # the message says which spec and stage.
         for stage, build in [
             ("collect", lambda: [self.collect_config(env, 0) for env in self.envs]),
             ("filter", lambda: self.filter_arms(0)),
-            (
+            (  # the shared settings alone first: their errors are named as theirs
                 "train",
-                lambda: [
-                    self.train_config(o, 0, dataset="-", selection=None, out="-")
-                    for o in self.objectives
-                ],
-            ),  # fmt: skip
+                lambda: TrainConfig(dataset="-", objective=self.objectives[0], out="-", **shared),
+            ),
+            *(  # then every backbone the spec trains or sets a budget for
+                (
+                    f"train.by_objective.{o}" if o in by_objective else "train",
+                    lambda o=o: self.train_config(o, 0, dataset="-", selection=None, out="-"),
+                )
+                for o in dict.fromkeys([*self.objectives, *by_objective])
+            ),
             (
                 "evaluate",
                 lambda: [
@@ -215,7 +246,7 @@ class Experiment:
         resume: bool = False,
     ) -> TrainConfig:
         settings = {k: v for k, v in self.train.items() if k != "by_objective"}
-        settings.update(self.train.get("by_objective", {}).get(objective, {}))
+        settings.update((self.train.get("by_objective") or {}).get(objective, {}))
         return TrainConfig(
             dataset=dataset,
             selection=selection,
@@ -282,6 +313,8 @@ def load_experiment(
         raise ValueError(f"{path.stem} has no preset {preset!r} (it has {sorted(presets)})")
     paper = spec.pop("paper", {}) or {}
     merged = _merge(spec, presets[preset])
+    if isinstance(spec.get("train"), dict) and isinstance(presets[preset].get("train"), dict):
+        merged["train"] = _merge_train(spec["train"], presets[preset]["train"])
     unknown = set(merged) - TOP_KEYS
     if unknown:
         raise ValueError(f"{path}: unknown keys {sorted(unknown)} (one of {sorted(TOP_KEYS)})")

@@ -59,5 +59,17 @@ def test_the_collection_records_where_it_ran(cache, tmp_path):
     assert m["ppo_backend"] == ds.lhf["collect"].get("ppo_backend", "torch")
     assert m["ppo_verdict"]["choice"] == m["ppo_backend"]
     assert m["cpu"] and m["isa"] in ("avx512", "avx2", "other")
-    assert m["kernel_march"] == native.target_march()  # native unless $LHF_HF_KERNEL_MARCH says
+    # the kernel's -march (native unless $LHF_HF_KERNEL_MARCH says) where the kernel ran
+    if m["ppo_backend"] == "kernel":
+        assert m["kernel_march"] == native.target_march()
+    else:
+        assert "kernel_march" not in m
     assert "machine" not in ds.lhf["collect"]  # not part of the data's identity
+    torch_ds = collect(
+        CollectConfig(**KW, workers=1, ppo_backend="torch"), tmp_path / "t", progress=False
+    )
+    assert "kernel_march" not in torch_ds.lhf["machine"]  # no kernel ran
+    kernel_ds = collect(
+        CollectConfig(**KW, workers=1, ppo_backend="kernel"), tmp_path / "k", progress=False
+    )
+    assert kernel_ds.lhf["machine"]["kernel_march"] == "native"

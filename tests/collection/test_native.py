@@ -128,6 +128,15 @@ def test_the_avx2_path_matches_torch_as_the_native_one(tmp_path, monkeypatch):
         native.build.cache_clear()
         with pytest.raises(native.KernelUnavailable, match="must be a -march name"):
             native.build(64)
+        monkeypatch.setenv("LHF_HF_KERNEL_MARCH", "no-such-cpu")  # the compiler's refusal
+        native.build.cache_clear()
+        with pytest.raises(
+            native.KernelUnavailable, match=r"-march=no-such-cpu \(\$LHF_HF_KERNEL_MARCH\)"
+        ):
+            native.build(64)
+        monkeypatch.setenv("LHF_HF_KERNEL_MARCH", "")  # empty: as if unset
+        native.build.cache_clear()
+        assert native.target_march() == "native" and native.build(64) == native_lib
     finally:
         native.build.cache_clear()
         native.load.cache_clear()

@@ -99,8 +99,15 @@ def test_spec_errors(tmp_path):
         ("train", {"lr": "1e-3"}, r"TrainConfig.lr must be a number, got '1e-3' \(in YAML"),
         ("evaluate", {"split_seed": 5}, "evaluate.split_seed is not a setting"),  # run r: split r
         ("collect", {"ppo": {"nstep": 3}}, "CollectConfig.ppo: unknown setting 'nstep'"),
-        ("train", {"by_objective": {"bc": {"max_steps": 5}}}, "by_objective must map backbones"),
-        ("train", {"by_objective": {"dicp": 5}}, "by_objective must map backbones"),
+        ("train", {"by_objective": {"bc": {"max_steps": 5}}}, "'bc' is not a backbone"),
+        ("train", {"by_objective": {"dicp": 5}}, "by_objective.dicp must be a mapping"),
+        ("train", {"by_objective": [1]}, r"by_objective must map backbones .* got \[1\]"),
+        # checked although the spec (objectives: [ad]) does not train DICP
+        (
+            "train",
+            {"by_objective": {"dicp": {"lr": -1.0}}},
+            "by_objective.dicp: TrainConfig.lr must be > 0",
+        ),
         (
             "train",
             {"by_objective": {"dicp": {"max_step": 5}}},
@@ -153,6 +160,21 @@ def test_stage_configs_take_the_config_defaults(tmp_path):
     per = load_experiment(_spec(tmp_path, spec, "per"), "quick")
     assert per.train_config("ad", 1, dataset="d", selection=None, out="o") == tr
     assert per.train_config("dicp", 1, dataset="d", selection=None, out="o").max_steps == 8
+    # top level <- preset: a preset's shared setting replaces the top level's per-backbone one (the
+    # preset is the budget), its own by_objective applies last, and null there drops the top's
+    spec = json.loads(json.dumps(TINY))
+    spec["train"] = {"by_objective": {"dicp": {"max_steps": 50, "lr": 0.01}}}
+    layered = load_experiment(_spec(tmp_path, spec, "layered"), "quick")
+    dicp = layered.train_config("dicp", 1, dataset="d", selection=None, out="o")
+    assert (dicp.max_steps, dicp.lr) == (4, 0.01)  # the preset sets max_steps: 4
+    spec["presets"]["quick"]["train"]["by_objective"] = {"dicp": {"max_steps": 6}}
+    layered = load_experiment(_spec(tmp_path, spec, "layered"), "quick")
+    dicp = layered.train_config("dicp", 1, dataset="d", selection=None, out="o")
+    assert (dicp.max_steps, dicp.lr) == (6, 0.01)
+    spec["presets"]["quick"]["train"]["by_objective"] = None
+    layered = load_experiment(_spec(tmp_path, spec, "layered"), "quick")
+    dicp = layered.train_config("dicp", 1, dataset="d", selection=None, out="o")
+    assert (dicp.max_steps, dicp.lr) == (4, tr.lr)
     assert exp.eval_config(1, model="m", out="o", plan=False) == EvalConfig(
         model="m", out="o", seed=1, episodes=2, overwrite=True
     )
