@@ -79,7 +79,30 @@ def _table(folder: Path, summary: dict) -> list[str]:
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]
-    return lines + [""]
+    return lines + _kept_line(summary.get("selections") or []) + [""]
+
+
+def _kept_line(selections: list[dict]) -> list[str]:
+    """One line per env and arm: the mean return of the histories LHF kept vs rejected, averaged
+    over runs (tables made before the report recorded it have none)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for s in selections:
+        groups.setdefault((s["env_id"], s["arm"]), []).append(s)
+    out = []
+    for (env, arm), runs in groups.items():
+        kept = [_num(s.get("mean_return_selected_unique")) for s in runs]
+        rejected = [_num(s.get("mean_return_rejected")) for s in runs]
+        if None in kept:
+            continue
+        rej = [r for r in rejected if r is not None]
+        out.append(
+            f"LHF kept on {env}{'' if arm == 'lhf' else f' ({arm})'}: histories with mean return "
+            f"{sum(kept) / len(kept):.2f} vs {sum(rej) / len(rej):.2f} for those it rejected "
+            f"(mean over {len(runs)} run(s))."
+            if rej
+            else f"LHF kept every history on {env} ({len(runs)} run(s))."
+        )
+    return ["", *out] if out else []
 
 
 def render_index(root: str | Path) -> tuple[str, list[str]]:

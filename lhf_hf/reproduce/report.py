@@ -47,6 +47,35 @@ def _columns(exp: Experiment) -> list[str]:
     return cols
 
 
+def _selection_lines(selections: list[dict]) -> list[str]:
+    """What LHF kept, per run: the histories it kept and rejected and their mean returns (each
+    history's mean over its episodes), the question being whether the selection is cleaner data."""
+    if not selections:
+        return []
+
+    def num(x) -> str:
+        return "-" if x is None else f"{x:.2f}"
+
+    lines = [
+        "",
+        "## What LHF kept",
+        "",
+        "Per run: histories kept (at least once) and rejected, and the mean return of each group "
+        "(a history's mean over its episodes); the last column weighs the kept ones by how often "
+        "the resampling drew them, i.e. the data the LHF model trained on.",
+        "",
+        "| env | arm | run | kept / rejected | source | kept | rejected | resampled |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for s in selections:
+        lines.append(
+            f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
+            f"| {num(s['mean_return_source'])} | {num(s['mean_return_selected_unique'])} "
+            f"| {num(s['mean_return_rejected'])} | {num(s['mean_return_selection'])} |"
+        )
+    return lines
+
+
 def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
     cols = _columns(exp)
     lines = [
@@ -123,6 +152,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
                 f"{r['lhf_mean']:.2f} ± {r['lhf_std']:.2f} | {r['baseline_final']:.2f} | "
                 f"{r['lhf_final']:.2f} | {r['runs_baseline']} |"
             )
+    lines += _selection_lines(summary.get("selections") or [])
     lines += ["", "## Learning curves on the unseen tasks", ""]
     for cell in cells:
         rel = Path(cell["env_id"]) / cell["arm"] / "compare.png"

@@ -21,6 +21,7 @@ from lhf_hf.configs import CollectConfig
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare
 from lhf_hf.filtering.run import run_filter
+from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
 from lhf_hf.training.trainer import get_last_checkpoint
@@ -46,7 +47,8 @@ _TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_
 
 def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
     """Every stage of ``exp`` in run order (their folders under ``work``), and
-    ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``.
+    ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``; also
+    ``evals[("selection", env, arm)] -> [filter stage per run]`` (what each selection kept).
 
     A stage's hash covers its whole config (every field, defaults included: a changed default
     re-runs what it changes) and the hashes of the stages it reads.
@@ -101,6 +103,7 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                 )
                 stages.append(sel)
                 arms.append((arm, sel))
+                evals.setdefault(("selection", env, arm), []).append(sel)
             for obj in exp.objectives:
                 for arm, sel in [("baseline", None), *arms]:
                     train_cfg = exp.train_config(obj, run, dataset="", selection=None, out="")
@@ -275,10 +278,17 @@ def _run(
             ]
             res = compare(base, filt, out=out / env / arm, overwrite=True)
             cells.append({"env_id": env, "arm": arm, **res})
+    selections = [
+        {"env_id": env, "arm": arm, "run": run, **_selection_summary(stage.path(work))}
+        for env in exp.envs
+        for arm in _arms(exp)
+        for run, stage in enumerate(evals[("selection", env, arm)])
+    ]
     wall = round(time.perf_counter() - t0, 1)
     summary = {
         "experiment": exp.to_dict(),
         "cells": cells,
+        "selections": selections,
         "stages": runner.log,
         "wall_s": wall,
         # what the whole table cost, whichever call ran each stage (a cached stage's own record)
@@ -292,6 +302,25 @@ def _run(
     write_text_atomic(render_report(exp, cells, summary, out), report)
     echo(f"[lhf reproduce] report: {report}  ({wall} s)")
     return report
+
+
+#: What the report says of each selection (``Selection.summary``): histories kept and rejected and
+#: the mean return of each group, per history over its episodes.
+SELECTION_FIELDS = (
+    "histories",
+    "selected_unique",
+    "rejected",
+    "mean_return_source",
+    "mean_return_selected_unique",
+    "mean_return_rejected",
+    "mean_return_selection",
+)
+
+
+def _selection_summary(folder: Path) -> dict:
+    """A finished filter stage's selection summary (the fields above; absent ones are None)."""
+    found = json.loads((folder / "selection" / CONFIG_FILE).read_text()).get("summary") or {}
+    return {k: found.get(k) for k in SELECTION_FIELDS}
 
 
 def _stage_wall(folder: Path) -> float:

@@ -16,7 +16,7 @@ def _row(backbone, e, e_std, ci=None, base=4.0, lhf=5.0):
     return dict(backbone=backbone, E=e, E_std=e_std, E_ci95=ci, baseline_mean=base, lhf_mean=lhf)
 
 
-def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None) -> None:
+def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None, selections=None) -> None:
     summary = {
         "experiment": {"name": name, "title": f"Title of {name}", "preset": "cpu", "runs": 3,
                        "paper": paper},
@@ -25,6 +25,8 @@ def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None) -> Non
     }  # fmt: skip
     if stage_s is not None:
         summary["stage_s"] = stage_s
+    if selections is not None:
+        summary["selections"] = selections
     (root / f"{name}-cpu").mkdir(parents=True)
     (root / f"{name}-cpu" / "results.json").write_text(json.dumps(summary))
     (root / f"{name}-cpu" / "report.md").write_text("# report")
@@ -34,7 +36,10 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     _table(tmp_path, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
         _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
         _row("DICP + plan", -0.1, 0.5),
-    ]}], {"darkroom": {"ad": 90.7, "dicp": 19.0}}, stage_s=7200)  # fmt: skip
+    ]}], {"darkroom": {"ad": 90.7, "dicp": 19.0}}, stage_s=7200, selections=[
+        {"env_id": "darkroom", "arm": "lhf", "run": r, "mean_return_selected_unique": k,
+         "mean_return_rejected": j} for r, (k, j) in enumerate([(10.0, 12.0), (11.0, 13.0)])
+    ])  # fmt: skip
     _table(tmp_path, "a-main", [{"env_id": "darkroom-large", "arm": "lam2", "rows": [
         _row("DPT", 0.05, None),
     ]}], {})  # fmt: skip
@@ -54,6 +59,12 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     # an arm other than lhf is named; no paper value, one run (no std)
     assert "| darkroom-large (lam2) | DPT | +5.0 | - | - | helps (1 run, no error bar) |" in text
     assert "not-a-table" not in text
+    # what LHF kept, averaged over the runs; a table made before it was recorded says nothing
+    assert (
+        "LHF kept on darkroom: histories with mean return 10.50 vs 12.50 for those it rejected (mean over 2 run(s))."
+        in text
+    )
+    assert text.count("LHF kept") == 1
 
 
 def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):

@@ -260,6 +260,19 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
         "darkroom/lhf/compare.png" in text and (out / "darkroom" / "lhf" / "compare.png").exists()
     )
     assert "## Where LHF helps" in text and "Budget" in text
+    # what each run's selection kept: the source's mean return is the kept and rejected groups'
+    # means weighted by their sizes
+    sels = summary["selections"]
+    assert [(s["env_id"], s["arm"], s["run"]) for s in sels] == [
+        ("darkroom", "lhf", 0),
+        ("darkroom", "lhf", 1),
+    ]
+    for s in sels:
+        kept, rej = s["selected_unique"], s["rejected"]
+        assert kept + rej == s["histories"] and kept > 0
+        parts = kept * s["mean_return_selected_unique"] + rej * (s["mean_return_rejected"] or 0)
+        assert parts == pytest.approx(s["histories"] * s["mean_return_source"])
+    assert "## What LHF kept" in text and "| darkroom | lhf | 1 |" in text
     # A rerun is all cache hits and writes the same table.
     lines.clear()
     reproduce(spec, "quick", out=out, work=work, echo=lines.append)
