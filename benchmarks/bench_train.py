@@ -1,11 +1,14 @@
 """Training throughput: ``transformers.Trainer`` vs a plain PyTorch loop (same model, same batches).
 
-    python benchmarks/bench_train.py --dataset data/darkroom [--steps 30] [--json OUT]
+    python benchmarks/bench_train.py --dataset data/darkroom [--steps 30] [--rounds 3] [--json OUT]
 
 Targets (DESIGN.md 9, issue "model family"): Trainer >= 0.9x the plain loop's tokens/s on the
 paper preset (AD, context 80, batch 64), and building a batch (sampler + collator) < 5% of a step.
 Also measured: eager vs SDPA attention and ``torch.compile`` in the plain loop, and DICP (two tokens
-per transition).  Each variant starts from the same seed and draws the same windows.
+per transition).  Each variant starts from the same seed and draws the same windows.  The plain
+loop and the Trainer run in ``--rounds`` alternating rounds (plain first in even rounds, the Trainer
+first in odd ones) and the ratio is the median of the per-round ratios: a drift of a shared
+machine's speed within a round hits both, and one slow round does not decide the verdict.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import statistics
 import tempfile
 import time
 
@@ -101,6 +105,7 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=30)
     p.add_argument("--warmup", type=int, default=5)
     p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--rounds", type=int, default=3, help="alternating plain / Trainer rounds")
     p.add_argument("--json", default=None)
     args = p.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-train-")
@@ -109,6 +114,7 @@ def main() -> None:
         "torch": torch.__version__,
         "machine": platform.processor() or platform.machine(),
         "steps": args.steps,
+        "rounds": args.rounds,
         "warmup": args.warmup,
         "batch_size": args.batch_size,
         "variants": {},
@@ -134,8 +140,18 @@ def main() -> None:
         data = batches(trainer, args.steps)
         t_batch = batching_time(trainer, 20)
         rows = {}
-        rows["plain_sdpa"] = plain_loop(trainer, data, args.warmup)
-        rows["trainer_sdpa"] = trainer_run(c, args.warmup)
+        rounds = []  # (plain s/step, Trainer s/step) per round
+        for r in range(args.rounds):
+            order = ("plain", "trainer") if r % 2 == 0 else ("trainer", "plain")
+            t = {}
+            for variant in order:
+                if variant == "plain":
+                    t[variant] = plain_loop(trainer, data, args.warmup)
+                else:
+                    t[variant] = trainer_run(c, args.warmup)
+            rounds.append((t["plain"], t["trainer"]))
+        rows["plain_sdpa"] = statistics.median(p for p, _ in rounds)
+        rows["trainer_sdpa"] = statistics.median(t for _, t in rounds)
         # batches built in a worker process while the model steps (prefetch), not in the step
         rows["trainer_sdpa_worker"] = trainer_run(
             c, args.warmup, dataloader_num_workers=1, dataloader_persistent_workers=True
@@ -152,7 +168,9 @@ def main() -> None:
         out = {k: {"s_per_step": v, "tokens_per_s": tokens / v} for k, v in rows.items() if v}
         out["batching_s"] = t_batch
         out["batching_share_of_trainer_step"] = t_batch / rows["trainer_sdpa"]
-        out["trainer_vs_plain"] = rows["plain_sdpa"] / rows["trainer_sdpa"]
+        out["rounds_s_per_step"] = [{"plain": p, "trainer": t} for p, t in rounds]
+        out["trainer_vs_plain_per_round"] = [p / t for p, t in rounds]
+        out["trainer_vs_plain"] = statistics.median(p / t for p, t in rounds)
         out["tokens_per_step"] = tokens
         results["variants"][objective] = out
         print(objective, json.dumps(out, indent=1))
