@@ -36,6 +36,11 @@ class EvalConfig:
     plan_dynamics: what the planner imagines with: ``model`` (the learned reward and next-state
         heads) or ``oracle`` (the environment's true dynamics, gridworlds without a key: the
         planner's machinery with perfect dynamics, a diagnostic, not the paper's protocol).
+    rollouts: how many times each task is rolled out, side by side in one batch, each copy with its
+        own action draws (and Meta-World resets); curves and E average all of them.  One rollout
+        per task is the paper's protocol; on Darkroom a run's return is then mostly a draw of
+        which unseen goals the policy happened to find (docs/evaluation.md), so tables that
+        compare planning with the policy use several.
     plan_order: how the beam search ranks depth-0 candidates of equal score: ``sample`` (a
         permutation drawn from the policy, the reference's: with no predicted reward anywhere the
         action is a policy sample) or ``argmax`` (the policy's order).
@@ -53,11 +58,14 @@ class EvalConfig:
     overwrite: bool = False
     plan_dynamics: PlanDynamics = "model"
     plan_order: PlanOrder = "sample"
+    rollouts: int = 1
 
     def __post_init__(self) -> None:
         check_types(self)
         if self.episodes < 1:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
+        if self.rollouts < 1:
+            raise ValueError(f"EvalConfig.rollouts must be >= 1, got {self.rollouts!r}")
         if self.context not in CONTEXTS:
             raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.plan_dynamics == "oracle" and not self.plan:

@@ -78,7 +78,8 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
     if split_seed is None:
         split_seed = int(((train_cfg or {}).get("dataset") or {}).get("split_seed", 0))
     tasks = resolve_tasks(env_id, cfg.tasks, split_seed)
-    batch = make_task_batch(env_id, tasks, split_seed, cfg.seed)
+    # rollout-major copies: row r * len(tasks) + i of the batch is task tasks[i], rollout r
+    batch = make_task_batch(env_id, tasks * cfg.rollouts, split_seed, cfg.seed)
     res = rollout(
         model,
         batch,
@@ -104,9 +105,15 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
             "dataset": (train_cfg or {}).get("dataset"),
             "train": (train_cfg or {}).get("train"),
         },
-        "returns": res.returns.tolist(),  # (tasks, episodes)
+        "rollouts": cfg.rollouts,
+        # (rollouts * tasks, episodes), rollout-major: row r * len(tasks) + i is tasks[i], rollout r
+        "returns": res.returns.tolist(),
         "success": None if res.success is None else res.success.astype(int).tolist(),
         **curve_summary(res.returns),
+        # each rollout's whole-curve mean over the tasks: the spread a single rollout would show
+        "rollout_mean_returns": res.returns.reshape(cfg.rollouts, len(tasks), -1)
+        .mean((1, 2))
+        .tolist(),
         "success_rate": None if res.success is None else float(res.success.mean()),
         "wall_s": round(res.wall_s, 3),
         "env_steps": res.env_steps,
@@ -144,6 +151,7 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
         "tasks": results["config"]["tasks"],
         "num_tasks": len(results["tasks"]),
         "episodes": results["config"]["episodes"],
+        "rollouts": results["rollouts"],
         "plan": results["config"]["plan"],
         "seed": results["config"]["seed"],
         "context": results["context"],

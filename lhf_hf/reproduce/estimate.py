@@ -100,7 +100,7 @@ def eval_cost(
         else ("cache" if train.attention == "band" else "window")
     )
     key = f"evaluate|{env}|{objective}|{train.preset}|{plan}|{context}"
-    return Cost(key, float(steps * tasks))
+    return Cost(key, float(steps * tasks * cfg.rollouts))
 
 
 # ---- rates and the estimate

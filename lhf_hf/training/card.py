@@ -50,7 +50,7 @@ def eval_section(evaluations: list[dict]) -> str:
     for e in evaluations:
         succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
         lines.append(
-            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']} | {e['split_seed']} | {e['episodes']} | "
+            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e['split_seed']} | {e['episodes']} | "
             f"{'yes' if e['plan'] else 'no'} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
             f"{e['final_return']:.3f} | {succ} |"
         )
@@ -156,3 +156,9 @@ def write_model_card(
     )
     write_text_atomic(text, Path(out) / "README.md")
     return Path(out) / "README.md"
+
+
+def _copies(e: dict) -> str:
+    """' x N' for an evaluation that rolled each task out N times (``EvalConfig.rollouts``)."""
+    n = e.get("rollouts", 1)
+    return f" x {n}" if n > 1 else ""

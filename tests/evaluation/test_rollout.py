@@ -119,6 +119,40 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     assert (tmp_path / "ev" / "eval_curve.png").stat().st_size > 0
     card = (tmp_path / "m" / "README.md").read_text()
     assert "model-index:" in card and "mean_reward" in card and "| darkroom | 8 test |" in card
+    evaluate(
+        EvalConfig(model=str(tmp_path / "m"), out=str(tmp_path / "ev4"), episodes=1, rollouts=4),
+        progress=False,
+    )
+    assert "| darkroom | 8 test x 4 |" in (tmp_path / "m" / "README.md").read_text()
+
+
+def test_rollouts_roll_each_task_out_several_times_with_their_own_draws(tmp_path):
+    """``rollouts=3``: every unseen goal three times in one batch (rollout-major rows), each copy
+    with its own action draws; the curve and the per-rollout means average all of them."""
+    model = darkroom_model("ad")
+    _, test = task_split("darkroom", 0)
+    r = rollout(
+        model,
+        make_task_batch("darkroom", list(test) * 2, 0, 0),
+        2,
+        seed=3,
+        progress=False,
+        record_actions=True,
+    )
+    assert r.actions.shape == (16, 2 * get_spec("darkroom").horizon)
+    assert not np.array_equal(r.actions[:8], r.actions[8:])  # same goals, other draws
+    model.save_pretrained(tmp_path / "m")
+    out = evaluate(
+        EvalConfig(model=str(tmp_path / "m"), out=str(tmp_path / "ev"), episodes=2, rollouts=3),
+        progress=False,
+    )
+    returns = np.asarray(out["returns"])
+    assert out["tasks"] == list(test) and out["rollouts"] == 3 and returns.shape == (24, 2)
+    per_rollout = returns.reshape(3, 8, 2).mean((1, 2))
+    np.testing.assert_allclose(out["rollout_mean_returns"], per_rollout)
+    assert np.isclose(out["mean_return"], per_rollout.mean())
+    with pytest.raises(ValueError, match="rollouts must be >= 1"):
+        EvalConfig(model="m", out="o", rollouts=0)
 
 
 def test_evaluate_errors(tmp_path):

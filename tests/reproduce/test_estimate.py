@@ -164,6 +164,8 @@ def test_costs_by_hand():
         "darkroom", "dicp", tr, EvalConfig(model="-", out="-", episodes=10, plan=True), 0
     )
     assert planned == Cost("evaluate|darkroom|dicp|paper|plan|window", 8 * 120)
+    copies = EvalConfig(model="-", out="-", episodes=10, plan=True, rollouts=4)
+    assert eval_cost("darkroom", "dicp", tr, copies, 0).units == 4 * 8 * 120  # each task 4 times
     band = TrainConfig(dataset="-", out="-", objective="ad", preset="paper", attention="band")
     assert eval_cost("darkroom", "ad", band, ev, 0).key.endswith("|cache")  # auto: its semantics
 
