@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = EvalConfig(**values(args, args.fields))
     r = evaluate(cfg)
     print(
-        f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episodes{', planning' if cfg.plan else ''}): "
+        f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{', planning' if cfg.plan else ''}): "
         f"mean return {r['mean_return']:.3f}, first {r['first_return']:.3f}, final {r['final_return']:.3f}"
         + (f", success {r['success_rate']:.3f}" if r["success_rate"] is not None else "")
         + f"  [{r['env_steps_per_s']:.0f} env-steps/s]"

@@ -12,6 +12,8 @@ Context = Literal["auto", "cache", "recompute", "window"]
 PlanDynamics = Literal["model", "oracle"]
 PlanOrder = Literal["sample", "argmax"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
+#: copies of every task in one batch: beyond this the batch (tasks x rollouts envs) is a mistake
+MAX_ROLLOUTS = 1000
 
 
 @dataclass(frozen=True)
@@ -40,7 +42,8 @@ class EvalConfig:
         own action draws (and Meta-World resets); curves and E average all of them.  One rollout
         per task is the paper's protocol; on Darkroom a run's return is then mostly a draw of
         which unseen goals the policy happened to find (docs/evaluation.md), so tables that
-        compare planning with the policy use several.
+        compare planning with the policy use several.  All copies share one seeded stream (one
+        draw per row and step), so a run with N rollouts does not contain the run with fewer.
     plan_order: how the beam search ranks depth-0 candidates of equal score: ``sample`` (a
         permutation drawn from the policy, the reference's: with no predicted reward anywhere the
         action is a policy sample) or ``argmax`` (the policy's order).
@@ -64,8 +67,10 @@ class EvalConfig:
         check_types(self)
         if self.episodes < 1:
             raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
-        if self.rollouts < 1:
-            raise ValueError(f"EvalConfig.rollouts must be >= 1, got {self.rollouts!r}")
+        if not 1 <= self.rollouts <= MAX_ROLLOUTS:
+            raise ValueError(
+                f"EvalConfig.rollouts must be between 1 and {MAX_ROLLOUTS}, got {self.rollouts!r}"
+            )
         if self.context not in CONTEXTS:
             raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.plan_dynamics == "oracle" and not self.plan:

@@ -57,8 +57,11 @@ class GymTasks:
         )
 
     def reset(self) -> np.ndarray:
+        # one reset seed per (episode, row): rows beyond 1000 (many tasks x rollouts) widen the
+        # stride, so no row of one episode reuses another episode's seed within a rollout
+        stride = max(1000, len(self.envs))
         obs = [
-            env.reset(seed=self.seed + 1000 * self.episode + i)[0]
+            env.reset(seed=self.seed + stride * self.episode + i)[0]
             for i, env in enumerate(self.envs)
         ]
         self.episode += 1

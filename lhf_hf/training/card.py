@@ -41,16 +41,17 @@ def eval_section(evaluations: list[dict]) -> str:
     if not evaluations:
         return NO_EVAL
     lines = [
-        "In-context returns on unseen tasks (mean over tasks; whole curve and the last 10% of the "
-        "episodes), from `lhf evaluate`:",
+        "In-context returns on unseen tasks (mean over tasks, and over rollouts where a task was "
+        "rolled out `x N` times; whole curve and the last 10% of the episodes), from "
+        "`lhf evaluate`:",
         "",
-        "| env | tasks | split seed | episodes | planning | context | mean return | final return | success |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| env | tasks | split seed | seed | episodes | planning | context | mean return | final return | success |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for e in evaluations:
         succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
         lines.append(
-            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e['split_seed']} | {e['episodes']} | "
+            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e['split_seed']} | {e.get('seed', '-')} | {e['episodes']} | "
             f"{'yes' if e['plan'] else 'no'} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
             f"{e['final_return']:.3f} | {succ} |"
         )
@@ -58,19 +59,29 @@ def eval_section(evaluations: list[dict]) -> str:
 
 
 def model_index(evaluations: list[dict]) -> list:
+    """One model-index result per evaluation.  The Hub groups results by task and dataset (type,
+    config, split), keeping the first group's dataset name: the task set and split go in the
+    dataset config, so evaluations on other splits stay apart, and what else tells evaluations of
+    one split apart (seed, rollouts, planning, context) goes in the metric's name."""
     out = []
     for e in evaluations:
-        context = f", context {e['context']}" if e.get("context") else ""
-        plan = ", planning" if e["plan"] else ""
-        name = f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}{plan}{context})"
+        setting = [f"seed {e['seed']}"] if "seed" in e else []
+        if e.get("rollouts", 1) > 1:
+            setting.append(f"{e['rollouts']} rollouts per task")
+        if e["plan"]:
+            setting.append("planning")
+        if e.get("context"):
+            setting.append(f"context {e['context']}")
+        episodes = f"mean return over {e['episodes']} episode{'s' * (e['episodes'] > 1)}"
         out.append(
             EvalResult(
                 task_type="reinforcement-learning",
                 task_name="in-context reinforcement learning",
                 dataset_type=e["env_id"],
-                dataset_name=name,
+                dataset_name=f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']})",
+                dataset_config=f"{e['tasks']}-split-{e['split_seed']}",
                 metric_type="mean_reward",
-                metric_name=f"mean return over {e['episodes']} episodes",
+                metric_name=f"{episodes} ({', '.join(setting)})" if setting else episodes,
                 metric_value=round(e["mean_return"], 4),
             )
         )

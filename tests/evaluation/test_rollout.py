@@ -123,7 +123,12 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
         EvalConfig(model=str(tmp_path / "m"), out=str(tmp_path / "ev4"), episodes=1, rollouts=4),
         progress=False,
     )
-    assert "| darkroom | 8 test x 4 |" in (tmp_path / "m" / "README.md").read_text()
+    card = (tmp_path / "m" / "README.md").read_text()
+    flat = " ".join(card.split())  # the model-index YAML may fold long names
+    assert (
+        "| darkroom | 8 test x 4 | 3 | 0 |" in card
+        and "(seed 0, 4 rollouts per task, context window)" in flat
+    )
 
 
 def test_rollouts_roll_each_task_out_several_times_with_their_own_draws(tmp_path):
@@ -151,8 +156,9 @@ def test_rollouts_roll_each_task_out_several_times_with_their_own_draws(tmp_path
     per_rollout = returns.reshape(3, 8, 2).mean((1, 2))
     np.testing.assert_allclose(out["rollout_mean_returns"], per_rollout)
     assert np.isclose(out["mean_return"], per_rollout.mean())
-    with pytest.raises(ValueError, match="rollouts must be >= 1"):
-        EvalConfig(model="m", out="o", rollouts=0)
+    for bad in (0, -2, 10**11):
+        with pytest.raises(ValueError, match="rollouts must be between 1 and 1000"):
+            EvalConfig(model="m", out="o", rollouts=bad)
 
 
 def test_evaluate_errors(tmp_path):
