@@ -11,6 +11,7 @@ from .types import check_types
 Context = Literal["auto", "cache", "recompute", "window"]
 PlanDynamics = Literal["model", "oracle"]
 PlanOrder = Literal["sample", "argmax"]
+PlanGate = Literal["always", "reward_seen"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 #: copies of every task in one batch: beyond this the batch (tasks x rollouts envs) is a mistake
 MAX_ROLLOUTS = 1000
@@ -38,6 +39,11 @@ class EvalConfig:
     plan_dynamics: what the planner imagines with: ``model`` (the learned reward and next-state
         heads) or ``oracle`` (the environment's true dynamics, gridworlds without a key: the
         planner's machinery with perfect dynamics, a diagnostic, not the paper's protocol).
+    plan_gate: when a discrete-action task is planned for: ``always`` once the context is full
+        (the reference's) or ``reward_seen``, only while its context holds a nonzero reward (the
+        others act on a policy sample): before a goal is observed any predicted reward is a false
+        positive of the learned head, which the search follows instead of exploring (a departure
+        from the reference for under-trained heads, docs/evaluation.md).
     rollouts: how many times each task is rolled out, side by side in one batch, each copy with its
         own action draws (and Meta-World resets); curves and E average all of them.  One rollout
         per task is the paper's protocol; on Darkroom a run's return is then mostly a draw of
@@ -62,6 +68,7 @@ class EvalConfig:
     plan_dynamics: PlanDynamics = "model"
     plan_order: PlanOrder = "sample"
     rollouts: int = 1
+    plan_gate: PlanGate = "always"
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -73,6 +80,8 @@ class EvalConfig:
             )
         if self.context not in CONTEXTS:
             raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
+        if self.plan_gate != "always" and not self.plan:
+            raise ValueError("EvalConfig.plan_gate is a planning setting: pass plan=True")
         if self.plan_dynamics == "oracle" and not self.plan:
             raise ValueError("EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True")
         if self.split_seed is not None and self.split_seed < 0:

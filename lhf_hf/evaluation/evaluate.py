@@ -90,6 +90,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         progress=progress,
         plan_dynamics=cfg.plan_dynamics,
         plan_order=cfg.plan_order,
+        plan_gate=cfg.plan_gate,
     )
     out = Path(cfg.out)
     results = {

@@ -67,6 +67,7 @@ def rollout(
     engine: str = "auto",
     plan_dynamics: str = "model",
     plan_order: str = "sample",
+    plan_gate: str = "always",
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
@@ -76,7 +77,10 @@ def rollout(
     ``plan_dynamics``: ``model`` (the learned heads) or ``oracle`` (the environment's own dynamics
     inside the planner, a diagnostic; gridworlds without a key); ``plan_order``: the beam search's
     depth-0 tie order, ``sample`` (drawn from the policy on this rollout's seeded stream, the
-    reference's) or ``argmax``."""
+    reference's) or ``argmax``; ``plan_gate``: ``always`` (the reference: plan on every step once the
+    context is full) or ``reward_seen`` (plan only for tasks whose context holds a nonzero reward;
+    the others act on a policy sample: without an observed reward a predicted one can only be a
+    false positive of the learned head, which the search would follow; docs/evaluation.md)."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -86,6 +90,8 @@ def rollout(
         )
     if plan_dynamics not in ("model", "oracle"):
         raise ValueError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
+    if plan_gate not in ("always", "reward_seen"):
+        raise ValueError(f"plan_gate must be 'always' or 'reward_seen', got {plan_gate!r}")
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     plan_gen = torch.Generator().manual_seed(seed)  # the planner's depth-0 orders
@@ -97,6 +103,7 @@ def rollout(
     H = tasks.horizon
     returns, success, taken = [], [], []
     prev = None  # (state, action, reward, done) of the last step, numpy
+    seen = None  # (B, K) rewards of the last K transitions, for plan_gate="reward_seen"
     steps = planned = 0
     t0 = time.perf_counter()
     bar = tqdm(total=episodes, unit="episode", disable=not progress, desc="evaluate", leave=False)
@@ -129,6 +136,11 @@ def rollout(
                     generator=plan_gen,
                 )
                 action = action.numpy()
+                if plan_gate == "reward_seen":
+                    # tasks with no reward in the context act on a policy sample instead
+                    sampled = sample_actions(dist, rng)
+                    gate = (seen != 0).any(1)  # (B,)
+                    action = np.where(gate, action, sampled)
                 planned += 1
             elif plan and full and t >= H // 2:  # continuous: second half of each episode (ref)
                 action = greedy_search(
@@ -149,6 +161,9 @@ def rollout(
                 ep_success |= succ
             if record_actions:
                 taken.append(np.asarray(action))
+            if plan_gate == "reward_seen":
+                seen = np.zeros((len(state), K), np.float32) if seen is None else seen
+                seen[:, steps % K] = reward  # a ring over the last K transitions
             prev = (state, action, reward, done)
             state = nxt
             steps += 1

@@ -260,6 +260,8 @@ class Experiment:
 
     def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:
         settings = {k: v for k, v in self.evaluate.items() if k != "plan_dicp"}
+        if not plan:  # planning settings belong to the planned evaluations only
+            settings = {k: v for k, v in settings.items() if k not in PLAN_SETTINGS}
         # a stage folder is the cache's own: a half-written evaluation in it is replaced
         return EvalConfig(model=model, out=out, plan=plan, seed=run, overwrite=True, **settings)
 
@@ -270,6 +272,11 @@ class Experiment:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+#: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
+#: evaluations (which ``plan_dicp: both`` runs from the same settings)
+PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
 
 
 def experiment_names() -> list[str]:

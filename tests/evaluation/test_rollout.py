@@ -77,6 +77,29 @@ def test_planning_starts_once_the_context_is_full():
     np.testing.assert_array_equal(a.actions, b.actions)  # exact at depth: the same function
 
 
+def test_reward_gate_plans_only_for_tasks_that_have_seen_a_reward():
+    """``plan_gate="reward_seen"``: a task whose context never held a reward acts on the policy's
+    own samples (the planner draws from its own generator, so such a task takes exactly the
+    no-planning actions); without the gate the search steers those tasks too."""
+    model = darkroom_model("dicp", layers=1, context=10)
+    _, test = task_split("darkroom", 0)
+    goals = list(test) * 2  # 16 rows: most of them never reach their goal in 2 episodes
+
+    def run(**kw):
+        batch = make_task_batch("darkroom", goals, 0, 0)
+        return rollout(model, batch, 2, seed=5, progress=False, record_actions=True, **kw)
+
+    free, gated, always = run(), run(plan=True, plan_gate="reward_seen"), run(plan=True)
+    unrewarded = (gated.returns.sum(1) == 0) & (free.returns.sum(1) == 0)
+    assert unrewarded.sum() >= 4
+    np.testing.assert_array_equal(gated.actions[unrewarded], free.actions[unrewarded])
+    assert not np.array_equal(always.actions[unrewarded], free.actions[unrewarded])
+    with pytest.raises(ValueError, match="plan_gate must be"):
+        run(plan=True, plan_gate="sometimes")
+    with pytest.raises(ValueError, match="plan_gate is a planning setting"):
+        EvalConfig(model="m", out="o", plan_gate="reward_seen")
+
+
 def test_same_seed_same_rollout_other_seed_differs():
     model = darkroom_model("ad")
     a, b, c = (

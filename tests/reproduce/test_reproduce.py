@@ -219,6 +219,26 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
 
 
+def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
+    """``plan_dicp: both`` with ``plan_gate`` (a planning setting): the model-free evaluations are
+    the same stages as without it (cached ones stay valid), the planned ones carry it."""
+    dicp = {**TINY, "objectives": ["dicp"], "paper": {"darkroom": {"dicp": 15.2}}}
+    plain = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": "both"}}, "a"))
+    gated = load_experiment(
+        _spec(
+            tmp_path, {**dicp, "evaluate": {"plan_dicp": "both", "plan_gate": "reward_seen"}}, "g"
+        )
+    )
+    ev_a = plan_stages(plain, tmp_path)[1][("darkroom", "baseline", "dicp")]
+    ev_g = plan_stages(gated, tmp_path)[1][("darkroom", "baseline", "dicp")]
+    free = [(a.hash, g.hash) for a, g in zip(ev_a, ev_g, strict=True) if not a.config["plan"]]
+    planned = [(a, g) for a, g in zip(ev_a, ev_g, strict=True) if a.config["plan"]]
+    assert free and all(a == g for a, g in free)
+    assert planned and all(a.hash != g.hash for a, g in planned)
+    assert all(g.config["plan_gate"] == "reward_seen" for _, g in planned)
+    assert gated.eval_config(0, model="m", out="o", plan=False).plan_gate == "always"
+
+
 def test_sweep_arms_and_verdicts():
     exp = load_experiment("darkroom-lambda", "quick")
     arms = exp.filter_arms(2)
