@@ -21,11 +21,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from lhf_hf.evaluation import evaluate  # deferred: heavy (torch, transformers)
+    from lhf_hf.evaluation.evaluate import plan_label  # deferred: with it
 
     cfg = EvalConfig(**values(args, args.fields))
     r = evaluate(cfg)
     print(
-        f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{', planning' if cfg.plan else ''}): "
+        f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{plan_label(cfg).replace(' + ', ', ')}): "
         f"mean return {r['mean_return']:.3f}, first {r['first_return']:.3f}, final {r['final_return']:.3f}"
         + (f", success {r['success_rate']:.3f}" if r["success_rate"] is not None else "")
         + f"  [{r['env_steps_per_s']:.0f} env-steps/s]"

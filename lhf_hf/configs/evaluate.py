@@ -81,9 +81,11 @@ class EvalConfig:
         if self.context not in CONTEXTS:
             raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.plan_gate != "always" and not self.plan:
-            raise ValueError("EvalConfig.plan_gate is a planning setting: pass plan=True")
+            raise ValueError("EvalConfig.plan_gate is a planning setting: pass plan=True (--plan)")
         if self.plan_dynamics == "oracle" and not self.plan:
-            raise ValueError("EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True")
+            raise ValueError(
+                "EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True (--plan)"
+            )
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in ("test", "train"):

@@ -48,6 +48,18 @@ def curve_summary(returns: np.ndarray) -> dict:
     }
 
 
+def plan_label(cfg: EvalConfig) -> str:
+    """' + planning' and how it deviates from the reference's defaults ('' without planning)."""
+    if not cfg.plan:
+        return ""
+    how = [
+        *(["gated on a seen reward"] if cfg.plan_gate != "always" else []),
+        *(["true dynamics"] if cfg.plan_dynamics != "model" else []),
+        *(["argmax order"] if cfg.plan_order != "sample" else []),
+    ]
+    return " + planning" + (f" ({', '.join(how)})" if how else "")
+
+
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
     to the checkpoint's card.  Returns the results dict."""
@@ -120,6 +132,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         "env_steps": res.env_steps,
         "env_steps_per_s": round(res.env_steps / res.wall_s, 1),
         "planned_steps": res.planned_steps,
+        "planned_actions": res.planned_actions,
         "engine": res.engine,
         "context": res.context,
         "versions": library_versions(["transformers"]),
@@ -128,7 +141,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
     write_json_atomic(results, out / RESULTS_FILE)
     optimal = spec.optimal_returns()[tasks].mean() if spec.optimal_returns is not None else None
     plot_eval_curve(
-        {f"{mc.objective.upper()}{' + planning' if cfg.plan else ''}": res.returns},
+        {f"{mc.objective.upper()}{plan_label(cfg)}": res.returns},
         out / CURVE_FILE,
         title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, in context",
         optimal=optimal,
@@ -154,6 +167,7 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
         "episodes": results["config"]["episodes"],
         "rollouts": results["rollouts"],
         "plan": results["config"]["plan"],
+        "plan_setting": plan_label(EvalConfig(**results["config"])).removeprefix(" + "),
         "seed": results["config"]["seed"],
         "context": results["context"],
         "mean_return": results["mean_return"],

@@ -30,7 +30,8 @@ class RolloutResult:
     actions: np.ndarray | None
     wall_s: float
     env_steps: int
-    planned_steps: int
+    planned_steps: int  # steps on which the planner ran (for the whole batch)
+    planned_actions: int = 0  # task-steps that acted on the plan (fewer with plan_gate)
     engine: str = "hf"  # the cached step's forward: "lean" (decode.py) or "hf" (LlamaModel.forward)
     context: str = "cache"  # the context mode that ran ("auto" resolved)
 
@@ -92,6 +93,11 @@ def rollout(
         raise ValueError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
     if plan_gate not in ("always", "reward_seen"):
         raise ValueError(f"plan_gate must be 'always' or 'reward_seen', got {plan_gate!r}")
+    if plan and plan_gate != "always" and not c.discrete_actions:
+        raise ValueError(
+            "plan_gate='reward_seen' gates the beam search of discrete-action envs; continuous "
+            "actions plan with the greedy search, whose dense rewards need no gate"
+        )
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     plan_gen = torch.Generator().manual_seed(seed)  # the planner's depth-0 orders
@@ -104,7 +110,7 @@ def rollout(
     returns, success, taken = [], [], []
     prev = None  # (state, action, reward, done) of the last step, numpy
     seen = None  # (B, K) rewards of the last K transitions, for plan_gate="reward_seen"
-    steps = planned = 0
+    steps = planned = planned_actions = 0
     t0 = time.perf_counter()
     bar = tqdm(total=episodes, unit="episode", disable=not progress, desc="evaluate", leave=False)
     for _ in range(episodes):
@@ -137,10 +143,14 @@ def rollout(
                 )
                 action = action.numpy()
                 if plan_gate == "reward_seen":
-                    # tasks with no reward in the context act on a policy sample instead
+                    # tasks with no reward in the context act on a policy sample instead (the
+                    # search still runs for the whole batch: the context is shared)
                     sampled = sample_actions(dist, rng)
                     gate = (seen != 0).any(1)  # (B,)
                     action = np.where(gate, action, sampled)
+                    planned_actions += int(gate.sum())
+                else:
+                    planned_actions += len(action)
                 planned += 1
             elif plan and full and t >= H // 2:  # continuous: second half of each episode (ref)
                 action = greedy_search(
@@ -153,6 +163,7 @@ def rollout(
                     rng,
                 ).numpy()
                 planned += 1
+                planned_actions += len(action)
             else:
                 action = sample_actions(dist, rng)
             nxt, reward, done, succ = tasks.step(action)
@@ -179,6 +190,7 @@ def rollout(
         wall_s=time.perf_counter() - t0,
         env_steps=steps * len(state),
         planned_steps=planned,
+        planned_actions=planned_actions,
         engine=ctx.engine,
         context=ctx.mode,
     )

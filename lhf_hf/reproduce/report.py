@@ -95,10 +95,18 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "parentheses.",
     ]
     if exp.dicp_plan_modes() == (False, True):
+        gated = exp.evaluate.get("plan_gate", "always") != "always"
         lines += [
             "",
             "DICP is evaluated from the same checkpoints without planning (`DICP`) and with the "
-            "paper's planning (`DICP + plan`); the paper's DICP values are with planning.",
+            + (
+                "paper's beam search, gated on an observed reward (`DICP + plan`: a task is "
+                "planned for only while its context holds a reward, else it acts on a policy "
+                "sample; a departure from the reference, docs/evaluation.md)"
+                if gated
+                else "paper's planning (`DICP + plan`)"
+            )
+            + "; the paper's DICP values are with planning.",
         ]
     lines += [
         "",

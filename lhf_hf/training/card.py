@@ -52,7 +52,7 @@ def eval_section(evaluations: list[dict]) -> str:
         succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
         lines.append(
             f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e['split_seed']} | {e.get('seed', '-')} | {e['episodes']} | "
-            f"{'yes' if e['plan'] else 'no'} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
+            f"{_planning(e)} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
             f"{e['final_return']:.3f} | {succ} |"
         )
     return "\n".join(lines)
@@ -69,7 +69,7 @@ def model_index(evaluations: list[dict]) -> list:
         if e.get("rollouts", 1) > 1:
             setting.append(f"{e['rollouts']} rollouts per task")
         if e["plan"]:
-            setting.append("planning")
+            setting.append(e.get("plan_setting") or "planning")
         if e.get("context"):
             setting.append(f"context {e['context']}")
         episodes = f"mean return over {e['episodes']} episode{'s' * (e['episodes'] > 1)}"
@@ -173,3 +173,11 @@ def _copies(e: dict) -> str:
     """' x N' for an evaluation that rolled each task out N times (``EvalConfig.rollouts``)."""
     n = e.get("rollouts", 1)
     return f" x {n}" if n > 1 else ""
+
+
+def _planning(e: dict) -> str:
+    """The card's planning column: no / yes / yes and how it deviates (gate, dynamics, order)."""
+    if not e["plan"]:
+        return "no"
+    how = e.get("plan_setting", "planning").removeprefix("planning")
+    return "yes" + how

@@ -94,6 +94,10 @@ def test_reward_gate_plans_only_for_tasks_that_have_seen_a_reward():
     assert unrewarded.sum() >= 4
     np.testing.assert_array_equal(gated.actions[unrewarded], free.actions[unrewarded])
     assert not np.array_equal(always.actions[unrewarded], free.actions[unrewarded])
+    # the search runs on the same steps; only tasks with a reward in the context act on it
+    assert gated.planned_steps == always.planned_steps
+    assert always.planned_actions == 16 * always.planned_steps
+    assert gated.planned_actions <= (16 - unrewarded.sum()) * gated.planned_steps
     with pytest.raises(ValueError, match="plan_gate must be"):
         run(plan=True, plan_gate="sometimes")
     with pytest.raises(ValueError, match="plan_gate is a planning setting"):
@@ -146,6 +150,11 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
         EvalConfig(model=str(tmp_path / "m"), out=str(tmp_path / "ev4"), episodes=1, rollouts=4),
         progress=False,
     )
+    gated = EvalConfig(
+        model=str(tmp_path / "m"), out=str(tmp_path / "evg"), episodes=1, plan=True,
+        plan_gate="reward_seen",
+    )  # fmt: skip
+    assert evaluate(gated, progress=False)["planned_actions"] >= 0
     card = (tmp_path / "m" / "README.md").read_text()
     flat = " ".join(card.split())  # the model-index YAML may fold long names
     assert (
@@ -341,5 +350,7 @@ def test_metaworld_rollout_with_greedy_planning():
     r = rollout(model, batch, 2, seed=0, plan=True, progress=False, record_actions=True)
     assert r.returns.shape == (2, 2) and r.success.shape == (2, 2)
     # greedy planning only in each episode's second half (the context of 50 is full by then)
-    assert r.planned_steps == 2 * 50
+    assert r.planned_steps == 2 * 50 and r.planned_actions == 2 * 2 * 50
     assert np.all(np.abs(r.actions) <= 1)
+    with pytest.raises(ValueError, match="gates the beam search of discrete-action envs"):
+        rollout(model, batch, 1, plan=True, plan_gate="reward_seen", progress=False)
