@@ -64,13 +64,15 @@ class WallClockCheckpoints(TrainerCallback):
 
 
 def evaluate_checkpoint(
-    path: Path, tasks, split_seed: int, episodes: int, seeds, plan: bool = False
-) -> dict:
+    path: Path, tasks, split_seed: int, episodes: int, seeds, plan: bool = False,
+    plan_gate: str = "always",
+) -> dict:  # fmt: skip
     model = load_model(str(path))
     last10, whole = [], []
     for seed in seeds:
         batch = make_task_batch(model.config.env_id, tasks, split_seed, seed)
-        res = rollout(model, batch, episodes, seed=seed, plan=plan, progress=False)
+        res = rollout(model, batch, episodes, seed=seed, plan=plan, progress=False,
+                      plan_gate=plan_gate if plan else "always")  # fmt: skip
         last10.append(float(res.returns[:, -10:].mean()))
         whole.append(float(res.returns.mean()))
     return {"last10": last10, "whole_curve": whole, "context": res.context}
@@ -104,6 +106,8 @@ def main() -> None:
     p.add_argument("--preset", default="paper")
     p.add_argument("--plan", action="store_true",
                    help="also evaluate DICP checkpoints with planning")  # fmt: skip
+    p.add_argument("--plan-gate", default="always", choices=["always", "reward_seen"],
+                   help="planning only for tasks whose context holds a reward (EvalConfig.plan_gate)")  # fmt: skip
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
     args = p.parse_args()
@@ -138,7 +142,8 @@ def main() -> None:
                                      args.episodes, args.seeds)  # fmt: skip
             if args.plan and objective == "dicp":
                 ev["plan"] = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
-                                                 args.episodes, args.seeds, plan=True)  # fmt: skip
+                                                 args.episodes, args.seeds, plan=True,
+                                                 plan_gate=args.plan_gate)  # fmt: skip
             points.append({"step": step, "minutes": round(trained_s / 60, 2), **ev})
             print(objective, points[-1], flush=True)
         results["objectives"][objective] = {"tasks": tasks, "points": points}
