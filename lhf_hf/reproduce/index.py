@@ -42,7 +42,8 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     if e is None:  # E undefined (a baseline return of 0) or not recorded
         judged = "undefined (no finite E)"
     else:
-        judged = verdict(e, std).replace("|", "\\|")  # a pipe would end the table cell
+        interval = (lo, hi) if lo is not None and hi is not None else None
+        judged = verdict(e, std, interval).replace("|", "\\|")  # a pipe would end the table cell
     returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
     return (
         f"| {label} | {r['backbone']} | {_pct(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"

@@ -10,10 +10,18 @@ import yaml
 from .experiment import Experiment
 
 
-def verdict(e: float, e_std: float | None) -> str:
-    """Honest reading of one cell: an effect only counts when it exceeds its run-to-run spread."""
+def verdict(e: float, e_std: float | None, ci: tuple | list | None = None) -> str:
+    """Honest reading of one cell: with a 95 % confidence interval of the mean per-run E (2+ paired
+    runs), an effect counts only when the interval excludes 0; without one (older results), when
+    E exceeds its run-to-run std."""
     if not np.isfinite(e):
         return "undefined (baseline return 0)"
+    if ci is not None and len(ci) == 2 and all(np.isfinite(x) for x in ci):
+        if ci[0] > 0:
+            return "helps"
+        if ci[1] < 0:
+            return "hurts"
+        return "no clear effect (the 95% CI spans 0)"
     if e_std is None:
         return "helps (1 run, no error bar)" if e > 0 else "does not help (1 run, no error bar)"
     if e - e_std > 0:
@@ -142,7 +150,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines += ["", "## Where LHF helps, and where it does not", ""]
     for label, backbone, e, e_std, ci in verdicts:
         interval = f" (95% CI of the per-run E: {_pct(ci[0])} .. {_pct(ci[1])})" if ci else ""
-        lines.append(f"- {label}, {backbone}: E {_pct(e)}%{interval} -> {verdict(e, e_std)}")
+        lines.append(f"- {label}, {backbone}: E {_pct(e)}%{interval} -> {verdict(e, e_std, ci)}")
     lines += [
         "",
         "## Absolute returns",

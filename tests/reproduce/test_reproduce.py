@@ -251,6 +251,12 @@ def test_sweep_arms_and_verdicts():
     assert verdict(0.03, 0.05).startswith("no clear effect")
     assert verdict(0.03, None).startswith("helps (1 run")
     assert verdict(float("nan"), None).startswith("undefined")
+    # with a confidence interval, it decides: an effect beyond 1 std whose interval spans 0 is none
+    assert verdict(-0.194, 0.098, (-0.482, 0.113)) == "no clear effect (the 95% CI spans 0)"
+    assert (
+        verdict(0.10, 0.50, (0.01, 0.19)) == "helps"
+        and verdict(-0.1, 0.5, (-0.2, -0.01)) == "hurts"
+    )
 
 
 @pytest.mark.slow
