@@ -35,15 +35,18 @@ constexpr int H = HID;  // hidden width (SB3 MlpPolicy: 64)
 // registers.  AVX-512 (32 zmm registers of 16 floats): 4 x 4 + 4 + 1 = 21.  AVX2 + FMA (16 ymm
 // registers of 8 floats): 16-float vectors would be split in two by the compiler, so the same block
 // would need 42 registers and spill on every FMA (measured: half the torch path's speed on an AVX2
-// CPU, BENCHMARKS.md); 8-float vectors in 4 x 2 blocks need 4 x 2 + 2 + 1 = 11.  Each output
-// element is accumulated over k in the same order either way.
+// CPU, BENCHMARKS.md); 8-float vectors in 6 x 2 blocks need 6 x 2 + 2 + 1 = 15.  Why 6 rows, not
+// 4: with 4 x 2 = 8 accumulators, two FMA pipes of latency 4 (AMD Zen 3) have exactly 8 chains in
+// flight and any stall shows; 12 chains hide it: a Darkroom minibatch step went from 3.9-4.1 to
+// 2.9-3.3 ms on an AMD EPYC (BENCHMARKS.md).  Rows left over (m % RB) run in 4-, 2- and 1-row
+// blocks.  Each output element is accumulated over k in the same order either way.
 #if defined(__AVX512F__)
 constexpr int VW = 16;  // floats per vector: one zmm register
 constexpr int RB = 4;   // rows per register block
 constexpr int CB = 4;   // vectors per register block (H = 64: a whole row)
 #else
 constexpr int VW = 8;   // one ymm register (AVX2); plain SSE builds split it, correct but slow
-constexpr int RB = 4;
+constexpr int RB = 6;
 constexpr int CB = 2;
 #endif
 constexpr int NV = H / VW;  // vectors per hidden row
@@ -211,32 +214,47 @@ void mm_nn(int m, const float* a, const float* B, const float* bias, const float
     int i = 0;
     for (; i + RB <= m; i += RB)
       mm_block<RB, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
+    if (RB > 4 && i + 4 <= m) {
+      mm_block<4, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
+      i += 4;
+    }
+    if (RB > 2 && i + 2 <= m) {
+      mm_block<2, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
+      i += 2;
+    }
     for (; i < m; ++i) mm_block<1, EP, BIAS>(a + i * H, B, bias, y + i * H, c + i * H, col0);
   }
 }
 
+// g[k .. k + RB_, cols] = A[:, k .. k + RB_]^T @ D[:, cols] for the CB vectors of columns from col0.
+template <int RB_>
+inline void mm_tn_block(int m, const float* a, const float* d, float* g, int k, int col0) {
+  vf acc[RB_][CB] = {};
+  for (int i = 0; i < m; ++i) {
+    vf dv[CB];
+    for (int v = 0; v < CB; ++v) dv[v] = vload(d + i * H + col0 + v * VW);
+    for (int r = 0; r < RB_; ++r) {
+      const vf s = vset(a[i * H + k + r]);
+      for (int v = 0; v < CB; ++v) acc[r][v] += s * dv[v];
+    }
+  }
+  for (int r = 0; r < RB_; ++r)
+    for (int v = 0; v < CB; ++v) vstore(g + (k + r) * H + col0 + v * VW, acc[r][v]);
+}
+
 // G (H, H) = A^T (H, m) @ D (m, H), and gb (H) = column sums of D: the weight and bias gradients.
 void mm_tn(int m, const float* a, const float* d, float* g, float* gb) {
-  for (int col0 = 0; col0 < H; col0 += CB * VW)
-    for (int k = 0; k < H; k += RB) {
-      vf acc[RB][CB] = {};
-      for (int i = 0; i < m; ++i) {
-        vf dv[CB];
-        for (int v = 0; v < CB; ++v) dv[v] = vload(d + i * H + col0 + v * VW);
-        for (int r = 0; r < RB; ++r) {
-          const vf s = vset(a[i * H + k + r]);
-          for (int v = 0; v < CB; ++v) acc[r][v] += s * dv[v];
-        }
-      }
-      for (int r = 0; r < RB; ++r)
-        for (int v = 0; v < CB; ++v) vstore(g + (k + r) * H + col0 + v * VW, acc[r][v]);
-    }
+  for (int col0 = 0; col0 < H; col0 += CB * VW) {
+    int k = 0;
+    for (; k + RB <= H; k += RB) mm_tn_block<RB>(m, a, d, g, k, col0);
+    for (; k < H; k += 4) mm_tn_block<4>(m, a, d, g, k, col0);  // H % 4 == 0
+  }
   vf sb[NV] = {};
   for (int i = 0; i < m; ++i)
     for (int v = 0; v < NV; ++v) sb[v] += vload(d + i * H + v * VW);
   for (int v = 0; v < NV; ++v) vstore(gb + v * VW, sb[v]);
 }
-static_assert(H % RB == 0, "mm_tn blocks the hidden rows by RB");
+static_assert((H % RB) % 4 == 0, "mm_tn blocks the hidden rows by RB, then by 4");
 
 }  // namespace
 
