@@ -2,11 +2,17 @@
 
     python benchmarks/bench_icrl_curve.py --dataset data/dr50 [--objectives ad dpt dicp]
         [--minutes 15] [--every 2.5] [--episodes 50] [--seeds 0 1 2] [--lr 3e-3]
-        [--plan] [--out results/train/icrl_curve]
+        [--steps N --every-steps M] [--train-seeds 0 1 2] [--plan] [--out results/train/icrl_curve]
 
 Trains each objective on ``--dataset`` (``lhf train``'s Trainer, the given settings) for
 ``--minutes`` of wall time, saving a checkpoint every ``--every`` minutes of training (a wall-clock
-callback; the saves and the evaluations are not counted as training time).  Then every checkpoint
+callback; the saves and the evaluations are not counted as training time).  The learning rate is
+then ~constant (the cosine runs over 10^6 steps, since the clock sets the end).  With ``--steps N``
+the run is instead a step budget, as a preset trains: the cosine decays to 0 over N steps, a
+checkpoint every ``--every-steps``, and the training wall time of each is recorded.
+``--train-seeds`` trains independent models (``TrainConfig.seed``: init, dropout, windows); the
+plot's error bars are then the spread over trained models, otherwise over evaluation seeds.
+Then every checkpoint
 is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
 empty context, one rollout per seed, each model with its own context semantics) and the mean return
 of the last 10 episodes is plotted against the training minutes, with the published levels (DICP
@@ -41,12 +47,11 @@ from lhf_hf.utils.versions import library_versions
 LEVELS = {"ad": 12.5, "dpt": 14.0, "dicp": 15.0}
 
 
-class WallClockCheckpoints(TrainerCallback):
-    """Save every ``every_s`` seconds of training and stop after ``total_s``; the time spent saving
-    is not counted.  ``marks``: (step, training seconds) of every save."""
+class TrainingClock(TrainerCallback):
+    """Training seconds (the optimiser steps only: saves and logging are not counted) and
+    ``marks``: (step, training seconds) of every checkpoint saved."""
 
-    def __init__(self, every_s: float, total_s: float):
-        self.every_s, self.total_s = every_s, total_s
+    def __init__(self):
         self.marks: list[tuple[int, float]] = []
         self.trained_s = 0.0
         self.t0 = None
@@ -56,9 +61,24 @@ class WallClockCheckpoints(TrainerCallback):
 
     def on_step_end(self, args, state, control, **kwargs):
         self.trained_s += time.perf_counter() - self.t0
-        if self.trained_s >= self.every_s * (len(self.marks) + 1) or self.trained_s >= self.total_s:
+
+    def on_save(self, args, state, control, **kwargs):
+        self.marks.append((state.global_step, self.trained_s))
+
+
+class WallClockCheckpoints(TrainingClock):
+    """Save every ``every_s`` seconds of training and stop after ``total_s``."""
+
+    def __init__(self, every_s: float, total_s: float):
+        super().__init__()
+        self.every_s, self.total_s = every_s, total_s
+        self.saves = 0
+
+    def on_step_end(self, args, state, control, **kwargs):
+        super().on_step_end(args, state, control, **kwargs)
+        if self.trained_s >= self.every_s * (self.saves + 1) or self.trained_s >= self.total_s:
             control.should_save = True
-            self.marks.append((state.global_step, self.trained_s))
+            self.saves += 1
         if self.trained_s >= self.total_s:
             control.should_training_stop = True
 
@@ -100,7 +120,13 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=15.0)
     p.add_argument("--every", type=float, default=2.5, help="minutes between checkpoints")
     p.add_argument("--episodes", type=int, default=50)
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="evaluation seeds")
+    p.add_argument("--train-seeds", type=int, nargs="+", default=[0],
+                   help="one trained model per seed (TrainConfig.seed)")  # fmt: skip
+    p.add_argument("--steps", type=int, default=None,
+                   help="a step budget instead of --minutes: the cosine decays to 0 over it")  # fmt: skip
+    p.add_argument("--every-steps", type=int, default=None,
+                   help="steps between checkpoints with --steps (default: only the last)")  # fmt: skip
     p.add_argument("--lr", type=float, default=3e-3)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--preset", default="paper")
@@ -111,8 +137,15 @@ def main() -> None:
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
     args = p.parse_args()
-    if args.every <= 0 or args.minutes < args.every:
-        raise SystemExit("error: need 0 < --every <= --minutes")
+    if args.steps is None:
+        if args.every <= 0 or args.minutes < args.every:
+            raise SystemExit("error: need 0 < --every <= --minutes")
+        if args.every_steps is not None:
+            raise SystemExit("error: --every-steps goes with --steps")
+    elif args.steps < 1 or not 1 <= (args.every_steps or args.steps) <= args.steps:
+        raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
+    elif args.steps % (args.every_steps or args.steps):  # the Trainer saves at multiples only
+        raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
     results = {
         "command": "python benchmarks/bench_icrl_curve.py " + _command_flags(vars(args)),
         "machine": platform.processor() or platform.machine(),
@@ -122,33 +155,45 @@ def main() -> None:
         "objectives": {},
     }
     out = Path(args.out)
-    for objective in args.objectives:
-        Path(args.work).mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f"{objective}-", dir=args.work))  # new, never reused
-        cfg = TrainConfig(dataset=args.dataset, objective=objective, out=str(work),
-                          preset=args.preset, max_steps=10**6, batch_size=args.batch_size,
-                          lr=args.lr, save_steps=10**9, logging_steps=100)  # fmt: skip
-        trainer, provenance = build_trainer(cfg)
-        clock = WallClockCheckpoints(args.every * 60, args.minutes * 60)
-        trainer.add_callback(clock)
-        trainer.args.disable_tqdm = True
-        trainer.args.save_total_limit = None  # every wall-clock checkpoint is evaluated
-        trainer.train()
-        split_seed = int(provenance["dataset"]["split_seed"])
-        tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)
-        points = []
-        for step, trained_s in clock.marks:
-            ev = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
-                                     args.episodes, args.seeds)  # fmt: skip
-            if args.plan and objective == "dicp":
-                ev["plan"] = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
-                                                 args.episodes, args.seeds, plan=True,
-                                                 plan_gate=args.plan_gate)  # fmt: skip
-            points.append({"step": step, "minutes": round(trained_s / 60, 2), **ev})
-            print(objective, points[-1], flush=True)
-        results["objectives"][objective] = {"tasks": tasks, "points": points}
-        write_json_atomic(results, out / "curve.json")  # after each objective: nothing lost
+    for train_seed in args.train_seeds:  # seed-major: every objective's first model comes first
+        for objective in args.objectives:
+            run = {"train_seed": train_seed, **train_and_evaluate(args, objective, train_seed)}
+            entry = results["objectives"].setdefault(objective, {"tasks": run["tasks"], "runs": []})
+            entry["runs"].append(run)
+            write_json_atomic(results, out / "curve.json")  # after each model: nothing lost
     plot(results, out / "curve.png", args.episodes)
+
+
+def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
+    Path(args.work).mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f"{objective}-", dir=args.work))  # new, never reused
+    if args.steps is None:  # a wall-clock budget: the cosine's end is out of reach (~constant lr)
+        max_steps, save_steps = 10**6, 10**9
+        clock = WallClockCheckpoints(args.every * 60, args.minutes * 60)
+    else:
+        max_steps, save_steps, clock = args.steps, args.every_steps or args.steps, TrainingClock()
+    cfg = TrainConfig(dataset=args.dataset, objective=objective, out=str(work),
+                      preset=args.preset, max_steps=max_steps, batch_size=args.batch_size,
+                      lr=args.lr, save_steps=save_steps, logging_steps=100,
+                      seed=train_seed)  # fmt: skip
+    trainer, provenance = build_trainer(cfg)
+    trainer.add_callback(clock)
+    trainer.args.disable_tqdm = True
+    trainer.args.save_total_limit = None  # every checkpoint is evaluated
+    trainer.train()
+    split_seed = int(provenance["dataset"]["split_seed"])
+    tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)
+    points = []
+    for step, trained_s in clock.marks:
+        ev = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
+                                 args.episodes, args.seeds)  # fmt: skip
+        if args.plan and objective == "dicp":
+            ev["plan"] = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,
+                                             args.episodes, args.seeds, plan=True,
+                                             plan_gate=args.plan_gate)  # fmt: skip
+        points.append({"step": step, "minutes": round(trained_s / 60, 2), **ev})
+        print(objective, f"train seed {train_seed}", points[-1], flush=True)
+    return {"tasks": tasks, "points": points}
 
 
 def plot(results: dict, path: Path, episodes: int) -> None:
@@ -160,14 +205,20 @@ def plot(results: dict, path: Path, episodes: int) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     for i, (objective, r) in enumerate(results["objectives"].items()):
         colour = f"C{i}"
-        x = [pt["minutes"] for pt in r["points"]]
-        y = np.array([pt["last10"] for pt in r["points"]])  # (checkpoints, seeds)
-        ax.errorbar(x, y.mean(1), yerr=y.std(1), color=colour, marker="o", capsize=3,
-                    label=objective.upper())  # fmt: skip
-        if all("plan" in pt for pt in r["points"]):  # DICP with planning, same checkpoints
-            yp = np.array([pt["plan"]["last10"] for pt in r["points"]])  # (checkpoints, seeds)
-            ax.errorbar(x, yp.mean(1), yerr=yp.std(1), color=colour, marker="s", ls=":",
-                        capsize=3, label=f"{objective.upper()} + plan")  # fmt: skip
+        runs = r["runs"]
+        n = min(len(run["points"]) for run in runs)  # checkpoints every run reached
+        x = np.mean([[pt["minutes"] for pt in run["points"][:n]] for run in runs], axis=0)  # (n,)
+        for key, style, label in (("last10", "-", ""), ("plan", ":", " + plan")):
+            if key == "plan" and not all("plan" in pt for run in runs for pt in run["points"]):
+                continue  # DICP with planning, same checkpoints, when it was evaluated
+            # (runs, n, eval seeds): a trained model's return per evaluation seed
+            y = np.array([[(pt[key]["last10"] if key == "plan" else pt[key])
+                           for pt in run["points"][:n]] for run in runs])  # fmt: skip
+            # error bars: the spread over trained models where there are several, else over seeds
+            spread = y.mean(2).std(0) if len(runs) > 1 else y[0].std(1)
+            ax.errorbar(x, y.mean((0, 2)), yerr=spread, color=colour, ls=style,
+                        marker="s" if key == "plan" else "o", capsize=3,
+                        label=objective.upper() + label)  # fmt: skip
         ax.axhline(LEVELS[objective], color=colour, ls="--", lw=0.8)
     ax.set_xlabel("training wall time (minutes, 2-core CPU)")
     ax.set_ylabel(f"return, episodes {episodes - 9}-{episodes} (unseen goals)")

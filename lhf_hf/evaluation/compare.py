@@ -58,15 +58,38 @@ def _tasks_key(r: dict) -> tuple:
     return (r.get("split_seed"), tuple(r.get("tasks") or ()))
 
 
+# Evaluation settings that change what a backbone's curve measures (EvalConfig; the defaults are
+# what results written before a setting existed ran with).  Rollouts change the spread of a run's
+# curve, not its expectation, but a table's error bars must come from one protocol.
+_SETTINGS = {"rollouts": 1}
+_PLAN_SETTINGS = {"plan_gate": "always", "plan_dynamics": "model", "plan_order": "sample"}
+
+
+def _settings(r: dict) -> tuple:
+    keys = {**_SETTINGS, **(_PLAN_SETTINGS if r["config"].get("plan") else {})}
+    return tuple((k, r["config"].get(k, default)) for k, default in keys.items())
+
+
 def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
-    """Refuse runs that measure different things: another context protocol, or an LHF run whose
-    split and task set are not those of its paired baseline run (E pairs runs in the given order)."""
+    """Refuse runs that measure different things: another context protocol, other evaluation
+    settings within a backbone (rollouts, the planner's gate, dynamics and order), or an LHF run
+    whose split and task set are not those of its paired baseline run (E pairs runs in the given
+    order)."""
     protocols = {_protocol(r) for r in runs}
     if len(protocols) != 1:
         modes = sorted({f"{r['config'].get('context', 'cache')} ({r['_path']})" for r in runs})
         raise ValueError(f"compare: the runs use different context protocols: {modes}")
     for backbone in sorted(base):
         b, f = base[backbone], filt[backbone]
+        settings = {_settings(r): r["_path"] for r in (*b, *f)}
+        if len(settings) > 1:
+            shown = "; ".join(
+                f"{', '.join(f'{k}={v}' for k, v in key)} ({path})"
+                for key, path in settings.items()
+            )
+            raise ValueError(
+                f"compare: {backbone} runs were evaluated with different settings: {shown}"
+            )
         if len(b) == len(f):
             for rb, rf in zip(b, f, strict=True):
                 if _tasks_key(rb) != _tasks_key(rf):

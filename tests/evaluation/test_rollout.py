@@ -228,14 +228,14 @@ def test_evaluate_errors(tmp_path):
         EvalConfig(model="m", out="o", context="fast")
 
 
-def fake_eval(path, objective, curve, env="darkroom", plan=False, split=0, tasks=(3, 5), context="cache"):  # fmt: skip
+def fake_eval(path, objective, curve, env="darkroom", plan=False, split=0, tasks=(3, 5), context="cache", **settings):  # fmt: skip
     path.mkdir(parents=True)
     (path / "eval_results.json").write_text(
         json.dumps(
             {
                 "env_id": env,
                 "objective": objective,
-                "config": {"plan": plan, "context": context},
+                "config": {"plan": plan, "context": context, **settings},
                 "mean_curve": curve,
                 "split_seed": split,
                 "tasks": list(tasks),
@@ -287,6 +287,18 @@ def test_compare_errors(tmp_path):
     b1 = fake_eval(tmp_path / "b1", "ad", [1, 2], split=1, tasks=(4,))
     with pytest.raises(ValueError, match="different splits or task sets"):
         compare([a, b1], [fake_eval(tmp_path / "u", "ad", [1, 2], split=2)])
+    # other evaluation settings within a backbone: refused, naming the setting and the run
+    with pytest.raises(ValueError, match=r"AD runs were evaluated with different settings: rollouts=1 .*rollouts=4 \(.*/r4\)"):  # fmt: skip
+        compare([a], [fake_eval(tmp_path / "r4", "ad", [1, 2], rollouts=4)])
+    p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True)  # written before plan_gate existed
+    with pytest.raises(ValueError, match="plan_gate=always.*plan_gate=reward_seen"):
+        compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen")])  # fmt: skip
+    with pytest.raises(ValueError, match="plan_dynamics=oracle"):
+        compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle")])  # fmt: skip
+    # planner settings do not matter without planning; the defaults match results written before
+    r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],
+                [fake_eval(tmp_path / "n2", "dicp", [2, 2], plan_gate="reward_seen", rollouts=1)])  # fmt: skip
+    assert np.isclose(r["rows"][0]["E"], 2 / 1.5 - 1)
     # cache and recompute are the same function: comparable; so are runs paired in order
     r = compare([a], [fake_eval(tmp_path / "r", "ad", [2, 2], context="recompute")])
     assert np.isclose(r["rows"][0]["E"], 2 / 1.5 - 1)
