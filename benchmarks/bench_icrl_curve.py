@@ -3,6 +3,7 @@
     python benchmarks/bench_icrl_curve.py --dataset data/dr50 [--objectives ad dpt dicp]
         [--minutes 15] [--every 2.5] [--episodes 50] [--seeds 0 1 2] [--lr 3e-3]
         [--steps N --every-steps M] [--train-seeds 0 1 2] [--plan] [--out results/train/icrl_curve]
+        [--resume]
 
 Trains each objective on ``--dataset`` (``lhf train``'s Trainer, the given settings) for
 ``--minutes`` of wall time, saving a checkpoint every ``--every`` minutes of training (a wall-clock
@@ -12,6 +13,8 @@ the run is instead a step budget, as a preset trains: the cosine decays to 0 ove
 checkpoint every ``--every-steps``, and the training wall time of each is recorded.
 ``--train-seeds`` trains independent models (``TrainConfig.seed``: init, dropout, windows); the
 plot's error bars are then the spread over trained models, otherwise over evaluation seeds.
+``curve.json`` is rewritten after each model; ``--resume`` keeps the models it holds (the same
+command) and trains only the missing ones.
 Then every checkpoint
 is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
 empty context, one rollout per seed, each model with its own context semantics) and the mean return
@@ -25,6 +28,7 @@ level 15 is DICP *with* planning, and whether planning helps depends on how far 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import tempfile
 import time
@@ -136,6 +140,8 @@ def main() -> None:
                    help="planning only for tasks whose context holds a reward (EvalConfig.plan_gate)")  # fmt: skip
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the models --out's curve.json holds (same command) and train the rest")  # fmt: skip
     args = p.parse_args()
     if args.steps is None:
         if args.every <= 0 or args.minutes < args.every:
@@ -146,6 +152,8 @@ def main() -> None:
         raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
     elif args.steps % (args.every_steps or args.steps):  # the Trainer saves at multiples only
         raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
+    resume = args.resume
+    del args.resume  # not part of what the results measure
     results = {
         "command": "python benchmarks/bench_icrl_curve.py " + _command_flags(vars(args)),
         "machine": platform.processor() or platform.machine(),
@@ -155,8 +163,20 @@ def main() -> None:
         "objectives": {},
     }
     out = Path(args.out)
+    if resume and (out / "curve.json").exists():
+        done = json.loads((out / "curve.json").read_text())
+        if done["command"] != results["command"]:
+            raise SystemExit(
+                f"error: --resume: {out / 'curve.json'} was made by another command:\n"
+                f"  {done['command']}\nnot\n  {results['command']}"
+            )
+        results["objectives"] = done["objectives"]
     for train_seed in args.train_seeds:  # seed-major: every objective's first model comes first
         for objective in args.objectives:
+            runs = results["objectives"].get(objective, {}).get("runs", [])
+            if any(r["train_seed"] == train_seed for r in runs):
+                print(f"{objective} train seed {train_seed}: in {out / 'curve.json'} already")
+                continue
             run = {"train_seed": train_seed, **train_and_evaluate(args, objective, train_seed)}
             entry = results["objectives"].setdefault(objective, {"tasks": run["tasks"], "runs": []})
             entry["runs"].append(run)
