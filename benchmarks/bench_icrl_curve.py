@@ -13,8 +13,9 @@ the run is instead a step budget, as a preset trains: the cosine decays to 0 ove
 checkpoint every ``--every-steps``, and the training wall time of each is recorded.
 ``--train-seeds`` trains independent models (``TrainConfig.seed``: init, dropout, windows); the
 plot's error bars are then the spread over trained models, otherwise over evaluation seeds.
-``curve.json`` is rewritten after each model; ``--resume`` keeps the models it holds (the same
-command) and trains only the missing ones.
+``curve.json`` is rewritten after each model; ``--resume`` keeps the models it holds (measured with
+the same settings; ``--train-seeds`` may add models) and trains only the missing ones.  Without it
+an existing ``curve.json`` is an error, never overwritten.
 Then every checkpoint
 is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
 empty context, one rollout per seed, each model with its own context semantics) and the mean return
@@ -30,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import tempfile
 import time
 from pathlib import Path
@@ -114,6 +116,15 @@ def _command_flags(args: dict) -> str:
     return " ".join(flags)
 
 
+def _measured(args) -> dict:
+    """The flags that decide what a model measures: not where it is written, which models are
+    trained (--train-seeds), or a mode's flags the other mode ignores."""
+    ignored = {"train_seeds", "out", "work", "resume"}
+    ignored |= {"minutes", "every"} if args.steps is not None else {"steps", "every_steps"}
+    ignored |= set() if args.plan else {"plan_gate"}
+    return {k: v for k, v in vars(args).items() if k not in ignored}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -141,36 +152,59 @@ def main() -> None:
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
     p.add_argument("--resume", action="store_true",
-                   help="keep the models --out's curve.json holds (same command) and train the rest")  # fmt: skip
+                   help="keep the models --out's curve.json holds (same settings; --train-seeds "
+                        "may add models) and train the missing ones")  # fmt: skip
     args = p.parse_args()
     if args.steps is None:
         if args.every <= 0 or args.minutes < args.every:
             raise SystemExit("error: need 0 < --every <= --minutes")
         if args.every_steps is not None:
             raise SystemExit("error: --every-steps goes with --steps")
-    elif args.steps < 1 or not 1 <= (args.every_steps or args.steps) <= args.steps:
-        raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
-    elif args.steps % (args.every_steps or args.steps):  # the Trainer saves at multiples only
-        raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
+    else:
+        every = args.steps if args.every_steps is None else args.every_steps
+        if args.steps < 1 or not 1 <= every <= args.steps:
+            raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
+        if args.steps % every:  # the Trainer saves at multiples only
+            raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
     resume = args.resume
     del args.resume  # not part of what the results measure
+    out = Path(args.out)
+    objectives = {}
+    if (out / "curve.json").exists():
+        if not resume:
+            raise SystemExit(
+                f"error: {out / 'curve.json'} exists: pass --resume to keep its models and "
+                "train the missing ones, or another --out"
+            )
+        try:
+            done = json.loads((out / "curve.json").read_text())
+            recorded = p.parse_args(shlex.split(done["command"])[2:])
+            objectives = done["objectives"]
+            seeds = [r["train_seed"] for o in objectives.values() for r in o["runs"]]
+        except (ValueError, KeyError, TypeError, AttributeError, SystemExit) as exc:
+            raise SystemExit(
+                f"error: --resume: {out / 'curve.json'} is not a curve.json of this benchmark "
+                f"({type(exc).__name__}: {exc}); move it away or pick another --out"
+            ) from None
+        diff = {k: (v, getattr(args, k)) for k, v in _measured(recorded).items()
+                if _measured(args).get(k) != v}  # fmt: skip
+        if diff:
+            shown = ", ".join(
+                f"--{k.replace('_', '-')} {a} (now {b})" for k, (a, b) in diff.items()
+            )
+            raise SystemExit(
+                f"error: --resume: {out / 'curve.json'} was measured with other settings: {shown}"
+            )
+        # the record's command names every model it holds
+        args.train_seeds = list(dict.fromkeys([*seeds, *args.train_seeds]))
     results = {
         "command": "python benchmarks/bench_icrl_curve.py " + _command_flags(vars(args)),
         "machine": platform.processor() or platform.machine(),
         "torch_threads": torch.get_num_threads(),
         "versions": library_versions(["torch", "transformers"]),
         "levels": LEVELS,
-        "objectives": {},
+        "objectives": objectives,
     }
-    out = Path(args.out)
-    if resume and (out / "curve.json").exists():
-        done = json.loads((out / "curve.json").read_text())
-        if done["command"] != results["command"]:
-            raise SystemExit(
-                f"error: --resume: {out / 'curve.json'} was made by another command:\n"
-                f"  {done['command']}\nnot\n  {results['command']}"
-            )
-        results["objectives"] = done["objectives"]
     for train_seed in args.train_seeds:  # seed-major: every objective's first model comes first
         for objective in args.objectives:
             runs = results["objectives"].get(objective, {}).get("runs", [])
@@ -241,7 +275,7 @@ def plot(results: dict, path: Path, episodes: int) -> None:
                         label=objective.upper() + label)  # fmt: skip
         ax.axhline(LEVELS[objective], color=colour, ls="--", lw=0.8)
     ax.set_xlabel("training wall time (minutes, 2-core CPU)")
-    ax.set_ylabel(f"return, episodes {episodes - 9}-{episodes} (unseen goals)")
+    ax.set_ylabel(f"return, episodes {max(1, episodes - 9)}-{episodes} (unseen goals)")
     ax.set_title("In-context return per training minute (dashed: published levels)")
     ax.legend()
     fig.tight_layout()

@@ -30,7 +30,27 @@ def load_results(path: str) -> dict:
     f = p / RESULTS_FILE if p.is_dir() else p
     if not f.exists():
         raise FileNotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
-    return json.loads(f.read_text())
+    try:
+        r = json.loads(f.read_text())
+    except ValueError as exc:
+        raise ValueError(f"compare: {f}: not readable JSON ({exc})") from None
+    # what compare reads, checked here so that a damaged file is named, not a KeyError
+    problem = None
+    if not isinstance(r, dict):
+        problem = "not a JSON object"
+    elif not isinstance(r.get("config"), dict):
+        problem = "no 'config' object"
+    elif not isinstance(r.get("objective"), str) or not isinstance(r.get("env_id"), str):
+        problem = "no 'objective' / 'env_id'"
+    elif not isinstance(r.get("mean_curve"), list) or not r["mean_curve"]:
+        problem = "no 'mean_curve' list"
+    else:
+        rollouts = r["config"].get("rollouts", 1)
+        if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 1:
+            problem = f"config.rollouts must be an integer >= 1, got {rollouts!r}"
+    if problem:
+        raise ValueError(f"compare: {f}: {problem} (not an `lhf evaluate` result)")
+    return r
 
 
 def backbone_of(r: dict) -> str:
@@ -81,11 +101,16 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
         raise ValueError(f"compare: the runs use different context protocols: {modes}")
     for backbone in sorted(base):
         b, f = base[backbone], filt[backbone]
-        settings = {_settings(r): r["_path"] for r in (*b, *f)}
+        settings: dict[tuple, list[str]] = {}
+        for r in (*b, *f):
+            settings.setdefault(_settings(r), []).append(r["_path"])
         if len(settings) > 1:
+            # name only the settings that differ, and every run with each value
+            first = next(iter(settings))
+            keys = [k for i, (k, _) in enumerate(first) if len({key[i][1] for key in settings}) > 1]
             shown = "; ".join(
-                f"{', '.join(f'{k}={v}' for k, v in key)} ({path})"
-                for key, path in settings.items()
+                f"{', '.join(f'{k}={v!r}' for k, v in key if k in keys)} ({', '.join(paths)})"
+                for key, paths in settings.items()
             )
             raise ValueError(
                 f"compare: {backbone} runs were evaluated with different settings: {shown}"

@@ -287,13 +287,27 @@ def test_compare_errors(tmp_path):
     b1 = fake_eval(tmp_path / "b1", "ad", [1, 2], split=1, tasks=(4,))
     with pytest.raises(ValueError, match="different splits or task sets"):
         compare([a, b1], [fake_eval(tmp_path / "u", "ad", [1, 2], split=2)])
-    # other evaluation settings within a backbone: refused, naming the setting and the run
-    with pytest.raises(ValueError, match=r"AD runs were evaluated with different settings: rollouts=1 .*rollouts=4 \(.*/r4\)"):  # fmt: skip
-        compare([a], [fake_eval(tmp_path / "r4", "ad", [1, 2], rollouts=4)])
+    # other evaluation settings within a backbone: refused, naming the setting and every run
+    a2 = fake_eval(tmp_path / "a2", "ad", [1, 2])
+    with pytest.raises(ValueError, match=r"AD runs were evaluated with different settings: rollouts=1 \(.*/a, .*/a2, .*/a\); rollouts=4 \(.*/r4\)$"):  # fmt: skip
+        compare([a, a2], [fake_eval(tmp_path / "r4", "ad", [1, 2], rollouts=4), a])
     p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True)  # written before plan_gate existed
-    with pytest.raises(ValueError, match="plan_gate=always.*plan_gate=reward_seen"):
+    with pytest.raises(ValueError, match=r"settings: plan_gate='always' \(.*/p1\); plan_gate='reward_seen' \(.*/p2\)$"):  # fmt: skip
         compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen")])  # fmt: skip
-    with pytest.raises(ValueError, match="plan_dynamics=oracle"):
+    # a damaged or hand-edited result is named, with what is wrong
+    bad = tmp_path / "bad"
+    for name, text, why in [
+        ("empty", "", "not readable JSON"),
+        ("list", "[1]", "not a JSON object"),
+        ("noconfig", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1]}', "no 'config'"),
+        ("r0", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1], "config": {"rollouts": 0}}', "rollouts must be an integer >= 1, got 0"),
+        ("rstr", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1], "config": {"rollouts": "1"}}', "got '1'"),
+    ]:  # fmt: skip
+        (bad / name).mkdir(parents=True)
+        (bad / name / "eval_results.json").write_text(text)
+        with pytest.raises(ValueError, match=f"{name}/eval_results.json: .*{why}"):
+            compare([a], [str(bad / name)])
+    with pytest.raises(ValueError, match="plan_dynamics='oracle'"):
         compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle")])  # fmt: skip
     # planner settings do not matter without planning; the defaults match results written before
     r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],
