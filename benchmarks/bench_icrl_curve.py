@@ -186,8 +186,8 @@ def main() -> None:
                 f"error: --resume: {out / 'curve.json'} is not a curve.json of this benchmark "
                 f"({type(exc).__name__}: {exc}); move it away or pick another --out"
             ) from None
-        diff = {k: (v, getattr(args, k)) for k, v in _measured(recorded).items()
-                if _measured(args).get(k) != v}  # fmt: skip
+        now = _measured(args)
+        diff = {k: (v, now.get(k)) for k, v in _measured(recorded).items() if now.get(k) != v}
         if diff:
             shown = ", ".join(
                 f"--{k.replace('_', '-')} {a} (now {b})" for k, (a, b) in diff.items()
