@@ -31,6 +31,7 @@ from transformers import AutoConfig, AutoModel, LlamaModel
 from transformers.modeling_outputs import ModelOutput
 from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
 
+from . import train_attention
 from .attention import band_mask, token_windows
 from .configuration_icrl import ICRLConfig
 
@@ -89,7 +90,11 @@ class ICRLModel(ICRLPreTrainedModel):
     """Embedders + ``LlamaModel`` + heads; ``forward`` returns an ``ICRLOutput`` with ``loss``."""
 
     def __init__(self, config: ICRLConfig):
+        requested = config._attn_implementation  # None unless the caller chose one
         super().__init__(config)
+        if requested is None:
+            # SDPA, with training's attention dropout computed faster (train_attention.py)
+            config._attn_implementation = train_attention.NAME
         self.backbone = LlamaModel(config)
         # Tokens enter through inputs_embeds: the vocabulary embedding is never used, and an unused
         # parameter would break DistributedDataParallel's gradient reduction.
