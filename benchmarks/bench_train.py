@@ -4,16 +4,19 @@
 
 Targets (DESIGN.md 9, issue "model family"): Trainer >= 0.9x the plain loop's tokens/s on the
 paper preset (AD, context 80, batch 64), and building a batch (sampler + collator) < 5% of a step.
-Also measured: eager vs SDPA attention and ``torch.compile`` in the plain loop, and DICP (two tokens
-per transition).  Each variant starts from the same seed and draws the same windows.  The plain
-loop and the Trainer run in ``--rounds`` alternating rounds (plain first in even rounds, the Trainer
-first in odd ones) and the ratio is the median of the per-round ratios: a drift of a shared
-machine's speed within a round hits both, and one slow round does not decide the verdict.
+Also measured: the training attention (``lhf_sdpa``, lhf_hf/modeling/train_attention.py, the
+default) against torch's SDPA in the plain loop, and DICP (two tokens per transition);
+``--all-variants`` adds the ones tried and dropped (eager attention, ``torch.compile``, a
+data-loading worker).  Each variant starts from the same seed and draws the same windows.  The
+plain loop, the Trainer and the torch-SDPA loop run in ``--rounds`` rounds, in an order rotated
+each round, and each ratio is the median of the per-round ratios: a drift of a shared machine's
+speed within a round hits every variant, and one slow round does not decide the verdict.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import platform
 import statistics
@@ -87,6 +90,18 @@ def trainer_run(cfg: TrainConfig, warmup: int, **overrides) -> float:
     return (timer.t1 - timer.t0) / (cfg.max_steps - warmup)
 
 
+@contextlib.contextmanager
+def attention(trainer, name: str):
+    """The plain loop's model (built from the Trainer's config) with another attention function."""
+    config = trainer.model.config
+    saved = config._attn_implementation
+    config._attn_implementation = name
+    try:
+        yield
+    finally:
+        config._attn_implementation = saved
+
+
 def batching_time(trainer, n: int) -> float:
     loader = trainer.get_train_dataloader()
     it = iter(loader)
@@ -107,6 +122,12 @@ def main() -> None:
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--rounds", type=int, default=3, help="alternating plain / Trainer rounds")
     p.add_argument("--json", default=None)
+    p.add_argument(
+        "--all-variants",
+        action="store_true",
+        help="also the variants tried and dropped: a data-loading worker, eager attention, "
+        "torch.compile",
+    )
     args = p.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-train-")
     results = {
@@ -140,37 +161,49 @@ def main() -> None:
         data = batches(trainer, args.steps)
         t_batch = batching_time(trainer, 20)
         rows = {}
-        rounds = []  # (plain s/step, Trainer s/step) per round
+        rounds = []  # {variant: s/step} per round
+        variants = ("plain", "trainer", "plain_torch_sdpa")
         for r in range(args.rounds):
-            order = ("plain", "trainer") if r % 2 == 0 else ("trainer", "plain")
+            # rotate the order, so that a drift of a shared machine's speed hits every variant
+            order = variants[r % 3 :] + variants[: r % 3]
             t = {}
             for variant in order:
                 if variant == "plain":
                     t[variant] = plain_loop(trainer, data, args.warmup)
-                else:
+                elif variant == "trainer":
                     t[variant] = trainer_run(c, args.warmup)
-            rounds.append((t["plain"], t["trainer"]))
-        rows["plain_sdpa"] = statistics.median(p for p, _ in rounds)
-        rows["trainer_sdpa"] = statistics.median(t for _, t in rounds)
-        # batches built in a worker process while the model steps (prefetch), not in the step
-        rows["trainer_sdpa_worker"] = trainer_run(
-            c, args.warmup, dataloader_num_workers=1, dataloader_persistent_workers=True
-        )
-        if objective == "ad":
-            trainer.model.config._attn_implementation = "eager"
-            rows["plain_eager"] = plain_loop(trainer, data, args.warmup)
-            trainer.model.config._attn_implementation = "sdpa"
-            try:
-                rows["plain_compiled"] = plain_loop(trainer, data, args.warmup, compile_model=True)
-            except Exception as exc:  # a missing compiler toolchain must not hide the other numbers
-                rows["plain_compiled"] = None
-                results.setdefault("errors", {})["plain_compiled"] = repr(exc)[:300]
+                else:  # the baseline: torch's SDPA in training too (draws dropout with bernoulli_)
+                    with attention(trainer, "sdpa"):
+                        t[variant] = plain_loop(trainer, data, args.warmup)
+            rounds.append(t)
+        for v in variants:
+            rows[v] = statistics.median(t[v] for t in rounds)
+        if args.all_variants:
+            # batches built in a worker process while the model steps (prefetch), not in the step
+            rows["trainer_worker"] = trainer_run(
+                c, args.warmup, dataloader_num_workers=1, dataloader_persistent_workers=True
+            )
+            if objective == "ad":
+                with attention(trainer, "eager"):
+                    rows["plain_eager"] = plain_loop(trainer, data, args.warmup)
+                try:
+                    rows["plain_compiled"] = plain_loop(
+                        trainer, data, args.warmup, compile_model=True
+                    )
+                except Exception as exc:  # a missing compiler must not hide the other numbers
+                    rows["plain_compiled"] = None
+                    results.setdefault("errors", {})["plain_compiled"] = repr(exc)[:300]
         out = {k: {"s_per_step": v, "tokens_per_s": tokens / v} for k, v in rows.items() if v}
         out["batching_s"] = t_batch
-        out["batching_share_of_trainer_step"] = t_batch / rows["trainer_sdpa"]
-        out["rounds_s_per_step"] = [{"plain": p, "trainer": t} for p, t in rounds]
-        out["trainer_vs_plain_per_round"] = [p / t for p, t in rounds]
-        out["trainer_vs_plain"] = statistics.median(p / t for p, t in rounds)
+        out["batching_share_of_trainer_step"] = t_batch / rows["trainer"]
+        out["rounds_s_per_step"] = rounds
+        out["trainer_vs_plain_per_round"] = [t["plain"] / t["trainer"] for t in rounds]
+        out["trainer_vs_plain"] = statistics.median(out["trainer_vs_plain_per_round"])
+        # the training attention (lhf_hf/modeling/train_attention.py) against torch's SDPA
+        out["speedup_vs_torch_sdpa_per_round"] = [
+            t["plain_torch_sdpa"] / t["plain"] for t in rounds
+        ]
+        out["speedup_vs_torch_sdpa"] = statistics.median(out["speedup_vs_torch_sdpa_per_round"])
         out["tokens_per_step"] = tokens
         results["variants"][objective] = out
         print(objective, json.dumps(out, indent=1))

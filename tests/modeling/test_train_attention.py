@@ -176,3 +176,8 @@ def test_plain_llama_backbone_is_unchanged():
 def test_paper_config_trains_with_it():
     m = ICRLModel(icrl_config("paper", objective="ad", state_dim=2, state_bins=9, action_dim=5))
     assert m.config._attn_implementation == train_attention.NAME
+
+
+def test_a_loaded_checkpoint_trains_with_it_too(tmp_path):
+    ICRLModel(grid_config("ad")).save_pretrained(tmp_path)
+    assert ICRLModel.from_pretrained(tmp_path).config._attn_implementation == train_attention.NAME
