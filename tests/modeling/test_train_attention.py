@@ -9,7 +9,12 @@ import torch.nn.functional as F
 from transformers import LlamaConfig, LlamaModel
 
 from lhf_hf.modeling import ICRLModel, icrl_config, train_attention
-from lhf_hf.modeling.train_attention import DropoutAttention, attention_forward, keep_weights
+from lhf_hf.modeling.train_attention import (
+    DropoutAttention,
+    attention_forward,
+    keep_weights,
+    sdpa_attention_forward,
+)
 
 from .test_modeling_icrl import grid_config, make_batch
 
@@ -46,15 +51,16 @@ def test_forward_and_backward_match_autograd_of_the_formula(Lq, Lk):
     ref_grads = torch.autograd.grad(ref, (q, k, v), g)
     for a, b in zip(grads, ref_grads, strict=True):
         torch.testing.assert_close(a, b)
+    small = [x[:1, :1].detach().requires_grad_() for x in (q, k, v)]  # gradcheck: few inputs
     assert torch.autograd.gradcheck(
-        lambda q, k, v: DropoutAttention.apply(q, k, v, bias, keep), (q, k, v)
+        lambda q, k, v: DropoutAttention.apply(q, k, v, bias, keep[:1, :1]), small
     )
 
 
 class _Module(torch.nn.Module):
-    num_key_value_groups = 1
-    is_causal = True
-    training = True
+    def __init__(self, groups=1, causal=True):
+        super().__init__()
+        self.num_key_value_groups, self.is_causal = groups, causal
 
 
 def test_without_dropout_it_is_sdpa():
@@ -80,10 +86,10 @@ def test_with_dropout_it_is_the_eager_formula_with_its_mask(mask_kind):
         else (torch.zeros(allowed.shape).masked_fill_(~allowed, float("-inf")))
     )
     torch.manual_seed(11)
-    out, _ = attention_forward(_Module(), q, k, v, mask, dropout=0.25, scaling=0.5)
+    out, _ = attention_forward(_Module(), q, k, v, mask, dropout=0.25, scaling=0.3)
     torch.manual_seed(11)
     keep, _ = keep_weights((2, 3, Lq, Lk), 0.25)
-    ref = reference(q * 0.5, k, v, bias, keep).transpose(1, 2)
+    ref = reference(q * 0.3, k, v, bias, keep).transpose(1, 2)
     torch.testing.assert_close(out, ref)
 
 
@@ -181,3 +187,56 @@ def test_paper_config_trains_with_it():
 def test_a_loaded_checkpoint_trains_with_it_too(tmp_path):
     ICRLModel(grid_config("ad")).save_pretrained(tmp_path)
     assert ICRLModel.from_pretrained(tmp_path).config._attn_implementation == train_attention.NAME
+
+
+def test_grouped_query_heads_non_causal_and_default_scaling():
+    """Two query heads per key/value head; ``is_causal=False`` with no mask: every key is seen;
+    no ``scaling``: 1 / sqrt(d)."""
+    g = torch.Generator().manual_seed(1)
+    q = torch.randn(2, 4, 5, 4, generator=g)
+    k, v = torch.randn(2, 2, 5, 4, generator=g), torch.randn(2, 2, 5, 4, generator=g)
+    torch.manual_seed(2)
+    out, _ = attention_forward(_Module(groups=2), q, k, v, None, dropout=0.3, is_causal=False)
+    torch.manual_seed(2)
+    keep, _ = keep_weights((2, 4, 5, 5), 0.3)
+    k2, v2 = k.repeat_interleave(2, dim=1), v.repeat_interleave(2, dim=1)
+    ref = reference(q * 0.5, k2, v2, torch.zeros(5, 5), keep).transpose(1, 2)
+    torch.testing.assert_close(out, ref)
+
+
+def test_cases_left_to_sdpa_are_sdpa():
+    """More keys than queries with no mask (a cache: SDPA's alignment), a drop probability that
+    rounds to 0, a mask that takes gradients: the same numbers as SDPA under the same seed."""
+    q, k, v = qkv(dtype=torch.float32, Lq=3, Lk=5)
+    learned = torch.zeros(3, 5, requires_grad=True)
+    for mask, p in ((None, 0.2), (None, 1e-6), (learned, 0.2)):
+        torch.manual_seed(4)
+        ours, _ = attention_forward(_Module(), q, k, v, mask, dropout=p)
+        torch.manual_seed(4)
+        ref, _ = sdpa_attention_forward(_Module(), q, k, v, mask, dropout=p)
+        assert torch.equal(ours, ref)
+    with pytest.raises(ValueError, match="softcap"):
+        attention_forward(_Module(), q, k, v, None, dropout=0.2, softcap=30.0)
+
+
+def test_a_row_with_every_key_masked_gives_zero_as_sdpa():
+    q, k, v = qkv(dtype=torch.float32, Lq=4, Lk=4)
+    allowed = torch.ones(1, 1, 4, 4, dtype=torch.bool)
+    allowed[..., 1, :] = False
+    out, _ = attention_forward(_Module(), q, k, v, allowed, dropout=0.2)
+    assert torch.isfinite(out).all() and (out[:, 1] == 0).all()
+    grads = torch.autograd.grad(out.sum(), (q, k, v))
+    assert all(torch.isfinite(g).all() for g in grads)
+    assert (grads[0][:, :, 1] == 0).all()
+
+
+def test_the_four_lanes_of_a_draw_are_independent():
+    """P(two lanes of one 64-bit word both dropped) = p^2 for every pair of lanes."""
+    torch.manual_seed(1)
+    keep, p = keep_weights((1 << 22,), 0.5)
+    lanes = (keep == 0).view(-1, 4).double()  # (words, 4)
+    n = lanes.shape[0]
+    for a in range(4):
+        for b in range(a + 1, 4):
+            both = (lanes[:, a] * lanes[:, b]).mean().item()
+            assert abs(both - p * p) < 6 * (p * p * (1 - p * p) / n) ** 0.5
