@@ -26,6 +26,8 @@ The mask comes from torch's default CPU generator (``Tensor.random_``), which th
 
 from __future__ import annotations
 
+import math
+
 import torch
 from transformers import AttentionInterface
 from transformers.integrations.sdpa_attention import repeat_kv, sdpa_attention_forward
@@ -41,13 +43,10 @@ def keep_weights(shape: tuple[int, ...], p: float) -> tuple[torch.Tensor, float]
 
     Each element compares 16 random bits with ``round(p * 2^16)``, so ``p'`` is ``p`` rounded to a
     multiple of 2^-16, and the kept weights' scale ``1 / (1 - p')`` keeps the expectation exact."""
-    n = 1
-    for s in shape:
-        n *= s
+    n = math.prod(shape)
     words = torch.empty((n + 3) // 4, dtype=torch.int64).random_(-(2**63), None)  # 64 random bits
-    bits = words.view(torch.int16)[:n].view(
-        shape
-    )  # 4 int16 draws per word, uniform in [-2^15, 2^15)
+    # 4 int16 draws per word, each uniform in [-2^15, 2^15)
+    bits = words.view(torch.int16)[:n].view(shape)
     level = round(p * _LEVELS)
     p_drawn = level / _LEVELS
     keep = (bits >= level - _LEVELS // 2).to(torch.float32)
