@@ -46,7 +46,7 @@ from lhf_hf.evaluation.rollout import rollout
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.modeling import load_model
 from lhf_hf.training import build_trainer
-from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.io import save_figure_atomic, write_json_atomic
 from lhf_hf.utils.versions import library_versions
 
 # Darkroom levels to reach: the DICP paper's AD and DICP at 50 episodes; issue 23's DPT target.
@@ -279,9 +279,8 @@ def plot(results: dict, path: Path, episodes: int) -> None:
     ax.set_title("In-context return per training minute (dashed: published levels)")
     ax.legend()
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    fig.set_dpi(120)  # savefig's default dpi is the figure's
+    save_figure_atomic(fig, path)
 
 
 if __name__ == "__main__":

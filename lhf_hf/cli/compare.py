@@ -9,9 +9,21 @@ from lhf_hf.configs.commands import CompareOptions
 from .evaluate import COMPARE_HELP
 from .flags import add_params, values
 
+# what compare refuses (evaluation/compare.py checks it; docs/evaluation.md): said in --help so
+# that a refused comparison is no surprise
+REFUSED = (
+    "Refused, with the runs named: runs on different envs or with different episode counts; a "
+    "backbone on one side only; one backbone's runs evaluated with different settings (rollouts; "
+    "with planning the gate, dynamics and depth-0 order); different context protocols (window vs "
+    "streaming); runs paired in the given order on different splits or task sets; one run given "
+    "twice; a damaged eval_results.json."
+)
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("compare", help=COMPARE_HELP, description=COMPARE_HELP)
+    p = subparsers.add_parser(
+        "compare", help=COMPARE_HELP, description=COMPARE_HELP, epilog=REFUSED
+    )
     fields = add_params(p, CompareOptions)
     p.set_defaults(func=run, fields=fields)
     return p

@@ -95,6 +95,18 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
     settings within a backbone (rollouts, the planner's gate, dynamics and order), or an LHF run
     whose split and task set are not those of its paired baseline run (E pairs runs in the given
     order)."""
+    # one results file on both sides (or twice on one) would pair a run with itself: E = 0, which
+    # reads as "no effect" although nothing was compared
+    seen: dict[Path, str] = {}
+    for r in runs:
+        p = Path(r["_path"])
+        f = (p / RESULTS_FILE if p.is_dir() else p).resolve()
+        if f in seen:
+            raise ValueError(
+                f"compare: {r['_path']} and {seen[f]} are the same evaluation run ({f}); each run "
+                "may be given once, on one side"
+            )
+        seen[f] = r["_path"]
     protocols = {_protocol(r) for r in runs}
     if len(protocols) != 1:
         modes = sorted({f"{r['config'].get('context', 'cache')} ({r['_path']})" for r in runs})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -288,9 +289,14 @@ def test_compare_errors(tmp_path):
     with pytest.raises(ValueError, match="different splits or task sets"):
         compare([a, b1], [fake_eval(tmp_path / "u", "ad", [1, 2], split=2)])
     # other evaluation settings within a backbone: refused, naming the setting and every run
-    a2 = fake_eval(tmp_path / "a2", "ad", [1, 2])
-    with pytest.raises(ValueError, match=r"AD runs were evaluated with different settings: rollouts=1 \(.*/a, .*/a2, .*/a\); rollouts=4 \(.*/r4\)$"):  # fmt: skip
-        compare([a, a2], [fake_eval(tmp_path / "r4", "ad", [1, 2], rollouts=4), a])
+    a2, a3 = fake_eval(tmp_path / "a2", "ad", [1, 2]), fake_eval(tmp_path / "a3", "ad", [1, 2])
+    with pytest.raises(ValueError, match=r"AD runs were evaluated with different settings: rollouts=1 \(.*/a, .*/a2, .*/a3\); rollouts=4 \(.*/r4\)$"):  # fmt: skip
+        compare([a, a2], [fake_eval(tmp_path / "r4", "ad", [1, 2], rollouts=4), a3])
+    # one run on both sides (a folder and its results file are the same run) would give E = 0
+    with pytest.raises(ValueError, match=r"/a/eval_results.json and .*/a are the same evaluation run"):  # fmt: skip
+        compare([a], [f"{a}/eval_results.json"])
+    with pytest.raises(ValueError, match="are the same evaluation run"):
+        compare([a, a], [a2, a3])
     p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True)  # written before plan_gate existed
     with pytest.raises(ValueError, match=r"settings: plan_gate='always' \(.*/p1\); plan_gate='reward_seen' \(.*/p2\)$"):  # fmt: skip
         compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen")])  # fmt: skip
@@ -335,7 +341,11 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
         == 0
     )
     assert "mean return" in capsys.readouterr().out
-    assert main(["compare", "--baseline", str(tmp_path / "e"), "--lhf", str(tmp_path / "e")]) == 0
+    # the same run on both sides is refused (E = 0 would read as "no effect"); a copy compares
+    assert main(["compare", "--baseline", str(tmp_path / "e"), "--lhf", str(tmp_path / "e")]) == 1
+    assert "are the same evaluation run" in capsys.readouterr().err
+    shutil.copytree(tmp_path / "e", tmp_path / "e-copy")
+    assert main(["compare", "--baseline", str(tmp_path / "e"), "--lhf", str(tmp_path / "e-copy")]) == 0  # fmt: skip
     assert "+0.0" in capsys.readouterr().out
     assert (
         main(["evaluate", "--model", str(tmp_path / "m"), "--plan", "--out", str(tmp_path / "x")])
