@@ -4,7 +4,9 @@
 
 Reads every ``stage.json`` under the given stage caches that recorded its cost (stages finished
 by a version with ``--estimate``), keeps those of this machine's CPU model, and writes the mean
-seconds per unit of each (key, torch threads) with the number of stages behind it.  The shipped
+seconds per unit of each (key, torch threads) with the number of stages behind it, as this
+machine's table in ``--out``: the tables of other machines there are kept (``--estimate`` uses
+the one of a like machine, ``estimate.load_reference``).  The shipped
 table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind),
 ``benchmarks/calibration/planning.yaml`` and ``darkroom-half --preset quick`` (a derivation,
 lightweight models); BENCHMARKS.md names the commands.  The start-up part of each stage (imports,
@@ -15,11 +17,14 @@ calibration stages give usable rates.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
 import time
+from pathlib import Path
 
 from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
-from lhf_hf.reproduce.estimate import REFERENCE, measured_stages, rate_table
+from lhf_hf.reproduce.estimate import REFERENCE, measured_stages, rate_table, reference_machines
 from lhf_hf.utils.io import write_json_atomic
 
 
@@ -34,17 +39,18 @@ def main() -> None:
         raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
     table = rate_table(records)
     rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
-    write_json_atomic(
-        {
-            "cpu": cpu,
-            "isa": instruction_set(),
-            "machine": f"{platform.machine()}, 2 cores",
-            "date": time.strftime("%Y-%m-%d"),
-            "command": "python benchmarks/reference_rates.py " + " ".join(a.work),
-            "rates": rates,
-        },
-        a.out,
-    )
+    mine = {
+        "cpu": cpu,
+        "isa": instruction_set(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "date": time.strftime("%Y-%m-%d"),
+        "command": "python benchmarks/reference_rates.py " + " ".join(a.work),
+        "rates": rates,
+    }
+    out = Path(a.out)
+    others = reference_machines(json.loads(out.read_text())) if out.exists() else []
+    machines = [m for m in others if m.get("cpu") != cpu] + [mine]
+    write_json_atomic({"machines": machines}, out)
     for r in rates:
         print(
             f"{r['key']:<50} {r['threads']} thread(s) {r['seconds_per_unit']:.3e} s/unit "

@@ -15,8 +15,9 @@ that scales (a training's steps, an evaluation's rollout) is read from the stage
 the rest is a per-stage start-up cost (``work_seconds``): estimate = start-up + rate x units.  A stage's rate is,
 in order: the mean over finished stages with its key on this CPU model at the same thread count
 (``this machine``), the same at the other thread count converted by the measured factor below, the
-reference table shipped in ``rates.json`` (measured on the machine it names), or none (its time is
-then missing from the total, which says so).  Rates are per unit, so a longer training or a longer
+reference tables shipped in ``rates.json`` (one per machine it was measured on: the one of this CPU
+model, else of this instruction set, ``load_reference``), or none (its time is then missing from the
+total, which says so).  Rates are per unit, so a longer training or a longer
 collection is predicted linearly (attention's cost grows with the context, and for the batched
 collector the chunk size matters, which is why the env is in the keys).
 
@@ -35,7 +36,7 @@ from pathlib import Path
 
 import torch
 
-from lhf_hf.collection.backend_verdict import cpu_model
+from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
 from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.evaluate import resolve_tasks
@@ -156,8 +157,33 @@ def rate_table(records: Sequence[dict]) -> dict[tuple[str, str, int], dict]:
     }
 
 
-def load_reference(path: Path = REFERENCE) -> dict:
-    return json.loads(path.read_text()) if path.exists() else {"cpu": "?", "rates": []}
+def reference_machines(data: dict) -> list[dict]:
+    """The machines of a ``rates.json``: ``{"machines": [...]}``, or one machine's table (the
+    older single-machine form)."""
+    if "machines" in data:
+        return list(data["machines"])
+    return [data] if "rates" in data else []
+
+
+def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | None = None) -> dict:
+    """The shipped reference rates for this machine: those of its CPU model, else of a machine with
+    its instruction set, else of any (the AVX-512 Intel and the AVX2 AMD machines differ ~2x, so a
+    like machine matters); a key the chosen machine never measured is taken from the next one, each
+    rate marked with the CPU that measured it."""
+    data = json.loads(path.read_text()) if path.exists() else {}
+    cpu = cpu_model() if cpu is None else cpu
+    isa = instruction_set() if isa is None else isa
+    machines = sorted(
+        reference_machines(data), key=lambda m: (m.get("cpu") != cpu, m.get("isa") != isa)
+    )
+    if not machines:
+        return {"cpu": "?", "rates": []}
+    rates, keys = [], set()
+    for m in machines:
+        mine = [{**r, "cpu": m.get("cpu", "?")} for r in m["rates"] if r["key"] not in keys]
+        keys |= {r["key"] for r in mine}
+        rates += mine
+    return {"cpu": machines[0].get("cpu", "?"), "rates": rates}
 
 
 def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) -> Rate | None:
@@ -166,12 +192,16 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
     ref_cpu = reference.get("cpu", "?")
     sources = (
         ("here", {k: v for k, v in table.items() if k[1] == cpu}),
-        ("reference", {(r["key"], ref_cpu, r["threads"]): r for r in reference["rates"]}),
-    )
+        ("reference", {(r["key"], r.get("cpu", ref_cpu), r["threads"]): r
+                       for r in reference["rates"]}),
+    )  # fmt: skip
     for source, rows in sources:
         found = [(t, v) for (k, _, t), v in rows.items() if k == key]
         if not found:
             continue
+        measured_on = next(c for (k, c, _) in rows if k == key)
+        if source == "reference" and measured_on != ref_cpu:
+            source = f"reference, {measured_on}"  # a fallback machine's rate: said
         same = [v for t, v in found if t == threads or not _threaded(key)]
         if same:
             v = same[0]

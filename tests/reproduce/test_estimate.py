@@ -95,6 +95,38 @@ def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
     assert find_rate("train|never", 2, table, here, ref) is None
 
 
+def test_reference_of_a_like_machine_first_and_the_others_for_what_it_lacks(tmp_path):
+    from lhf_hf.reproduce.estimate import load_reference
+
+    def machine(cpu, isa, rates):
+        return {"cpu": cpu, "isa": isa, "rates": [
+            {"key": k, "threads": 1, "seconds_per_unit": v, "stages": 1} for k, v in rates.items()
+        ]}  # fmt: skip
+
+    intel = machine("Intel X", "avx512", {"train|a": 1.0, "evaluate|b": 3.0})
+    amd = machine("AMD Y", "avx2", {"train|a": 2.0})
+    path = tmp_path / "rates.json"
+    path.write_text(json.dumps({"machines": [intel, amd]}))
+    # an AVX2 machine of another model: the AVX2 table first, the Intel one for what it lacks
+    ref = load_reference(path, cpu="AMD Z", isa="avx2")
+    assert ref["cpu"] == "AMD Y"
+    r = find_rate("train|a", 1, {}, "AMD Z", ref)
+    assert (r.seconds_per_unit, r.basis) == (2.0, "reference")
+    r = find_rate("evaluate|b", 1, {}, "AMD Z", ref)
+    assert (r.seconds_per_unit, r.basis) == (3.0, "reference, Intel X")
+    # the same CPU model wins over the instruction set
+    assert load_reference(path, cpu="Intel X", isa="avx2")["cpu"] == "Intel X"
+    # the single-machine form (older rates.json) still reads; no file: no rates
+    path.write_text(json.dumps(intel))
+    assert load_reference(path, cpu="AMD Z", isa="avx2")["cpu"] == "Intel X"
+    assert load_reference(tmp_path / "none.json") == {"cpu": "?", "rates": []}
+    # the shipped table parses, and names its machines
+    from lhf_hf.reproduce.estimate import REFERENCE, reference_machines
+
+    shipped = reference_machines(json.loads(REFERENCE.read_text()))
+    assert shipped and all(m["cpu"] and m["rates"] for m in shipped)
+
+
 def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path, monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 2)
     stages = _graph()
