@@ -50,6 +50,7 @@ def load_results(path: str) -> dict:
             problem = f"config.rollouts must be an integer >= 1, got {rollouts!r}"
     if problem:
         raise ValueError(f"compare: {f}: {problem} (not an `lhf evaluate` result)")
+    r["_file"] = str(f.resolve())  # the run's identity: a folder and its results file are one run
     return r
 
 
@@ -97,10 +98,9 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
     order)."""
     # one results file on both sides (or twice on one) would pair a run with itself: E = 0, which
     # reads as "no effect" although nothing was compared
-    seen: dict[Path, str] = {}
+    seen: dict[str, str] = {}
     for r in runs:
-        p = Path(r["_path"])
-        f = (p / RESULTS_FILE if p.is_dir() else p).resolve()
+        f = r["_file"]
         if f in seen:
             raise ValueError(
                 f"compare: {r['_path']} and {seen[f]} are the same evaluation run ({f}); each run "
