@@ -84,13 +84,15 @@ def test_existing_outputs_need_overwrite(data, tmp_path, capsys):
     assert main(ev) == 1
     assert "already holds an lhf evaluation: pass --overwrite" in capsys.readouterr().err
     assert main([*ev, "--overwrite"]) == 0
-    # compare into an existing comparison: --overwrite again
+    # compare into an existing comparison: --overwrite again (a copy of the run stands in
+    # for a second run: compare refuses one run on both sides)
+    shutil.copytree(f"{model}/eval", f"{model}/eval2")
     cmp = [
         "compare",
         "--baseline",
         f"{model}/eval",
         "--lhf",
-        f"{model}/eval",
+        f"{model}/eval2",
         "--out",
         str(tmp_path / "c"),
     ]
