@@ -177,16 +177,20 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         f = np.array([r["mean_curve"] for r in filt[backbone]])
         mb, mf = b.mean(1), f.mean(1)  # whole-curve mean per run
         e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else float("nan")
-        e_std = e_ci = None
-        if len(mb) == len(mf) and len(mb) > 1 and np.all(mb != 0):
+        e_std = e_ci = diff_ci = None
+        paired = len(mb) == len(mf) and len(mb) > 1
+        if paired and np.all(mb != 0):
             per_run = (mf - mb) / mb  # (runs,) E of each paired run (same seed and split)
             e_std = float(np.std(per_run, ddof=0))
-            # 95% confidence interval of the mean per-run E (Student t, n - 1 degrees of
-            # freedom): with 2 or 3 runs it is wide (t = 12.7 / 4.3), which is the honest reading
-            half = (
-                stats.t.ppf(0.975, len(per_run) - 1) * per_run.std(ddof=1) / np.sqrt(len(per_run))
-            )
-            e_ci = [float(per_run.mean() - half), float(per_run.mean() + half)]
+            # 95% confidence interval of the mean per-run E: with 2 or 3 runs it is wide
+            # (t = 12.7 / 4.3), which is the honest reading
+            e_ci = _t_interval(per_run)
+        if paired:
+            # The verdict's test: the paired t-test on the runs' return differences (same seed
+            # and split). A per-run ratio divides by that run's baseline return, so one weak
+            # baseline (0.6 against 1.9) makes E's spread, and its interval, as wide as the
+            # effect however alike the differences are; the difference has the sign of E.
+            diff_ci = _t_interval(mf - mb)
         tail = max(1, b.shape[1] // 10)
         rows.append(
             {
@@ -202,6 +206,10 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "E": float(e),
                 "E_std": e_std,
                 "E_ci95": e_ci,
+                "diff": float((mf - mb).mean()) if paired else None,
+                "diff_ci95": diff_ci,
+                "baseline_run_means": mb.tolist(),
+                "lhf_run_means": mf.tolist(),
                 "baseline_runs": [r["_path"] for r in base[backbone]],
                 "lhf_runs": [r["_path"] for r in filt[backbone]],
             }
@@ -218,6 +226,12 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             curves, out / "compare.png", title=f"{env_id}: baseline (dashed) vs LHF (solid)"
         )
     return result
+
+
+def _t_interval(x: np.ndarray) -> list[float]:
+    """95% confidence interval of the mean of ``x`` (runs,): Student t, n - 1 degrees of freedom."""
+    half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
+    return [float(x.mean() - half), float(x.mean() + half)]
 
 
 def markdown_table(rows: list[dict], env_id: str) -> str:

@@ -32,24 +32,36 @@ def _num(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _pair(x) -> tuple[float, float] | None:
+    """A recorded interval ``[lo, hi]`` of finite floats, or None."""
+    if not isinstance(x, list | tuple) or len(x) != 2:
+        return None
+    lo, hi = _num(x[0]), _num(x[1])
+    return None if lo is None or hi is None else (lo, hi)
+
+
 def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
-    ci = r.get("E_ci95")
-    lo, hi = (
-        (_num(ci[0]), _num(ci[1])) if isinstance(ci, list | tuple) and len(ci) == 2 else (None,) * 2
-    )
+    lo, hi = _pair(r.get("E_ci95")) or (None, None)
     p = _num((paper.get(env_id) or {}).get(_objective(r["backbone"])))
     if e is None:  # E undefined (a baseline return of 0) or not recorded
         judged = "undefined (no finite E)"
     else:
         interval = (lo, hi) if lo is not None and hi is not None else None
-        judged = verdict(e, std, interval).replace("|", "\\|")  # a pipe would end the table cell
+        diff_ci = _pair(r.get("diff_ci95"))
+        judged = verdict(e, std, interval, diff_ci).replace("|", "\\|")  # a pipe would end the cell
     returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
+    diff, diff_ci = _num(r.get("diff")), _pair(r.get("diff_ci95"))
+    paired = (
+        f" (difference {diff:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f})"
+        if diff is not None and diff_ci is not None
+        else ""
+    )
     return (
         f"| {label} | {r['backbone']} | {_pct(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
         f" | {f'{_pct(lo)} .. {_pct(hi)}' if lo is not None and hi is not None else '-'}"
         f" | {'-' if p is None else f'{p:+.1f}'} | {judged}"
-        f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)} |"
+        f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
     )
 
 
@@ -118,9 +130,14 @@ def render_index(root: str | Path) -> tuple[str, list[str]]:
         "",
         "Every table `lhf reproduce` wrote under this folder (`scripts/results_index.py` renders this "
         "page from their `results.json`). E = (whole-curve mean return with LHF - without) / without, "
-        "averaged over paired runs; ± is its std over the runs, the interval the 95% confidence "
-        "interval of the mean (Student t; `-` for tables made before it was recorded). The verdict "
-        "counts an effect only when |E| exceeds its std.",
+        "the returns averaged over the runs; ± is the std of the per-run E over paired runs (same "
+        "seed and split), the interval the 95% confidence interval of the mean per-run E (Student "
+        "t; `-` for tables made before it was recorded). The verdict is the paired t-test on the "
+        "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
+        "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
+        "run's baseline return, so one weak baseline widens E's interval whatever the differences "
+        "are). Tables made before the differences were recorded are judged on E's interval, or on "
+        "|E| against its std before that.",
         "",
     ]
     if not folders:

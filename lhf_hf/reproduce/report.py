@@ -10,18 +10,26 @@ import yaml
 from .experiment import Experiment
 
 
-def verdict(e: float, e_std: float | None, ci: tuple | list | None = None) -> str:
-    """Honest reading of one cell: with a 95 % confidence interval of the mean per-run E (2+ paired
-    runs), an effect counts only when the interval excludes 0; without one (older results), when
-    E exceeds its run-to-run std."""
+def verdict(
+    e: float,
+    e_std: float | None,
+    ci: tuple | list | None = None,
+    diff_ci: tuple | list | None = None,
+) -> str:
+    """Honest reading of one cell. With 2+ paired runs the test is the paired t-test on the runs'
+    return differences (LHF - baseline, same seed and split): an effect counts only when their
+    mean's 95 % confidence interval (``diff_ci``) excludes 0. Tables made before the differences
+    were recorded fall back to the 95 % interval of the mean per-run E (``ci``), and older ones
+    to E against its run-to-run std."""
     if not np.isfinite(e):
         return "undefined (baseline return 0)"
-    if ci is not None and len(ci) == 2 and all(np.isfinite(x) for x in ci):
-        if ci[0] > 0:
-            return "helps"
-        if ci[1] < 0:
-            return "hurts"
-        return "no clear effect (the 95% CI spans 0)"
+    for interval, name in ((diff_ci, "paired return difference's"), (ci, "")):
+        if interval is not None and len(interval) == 2 and all(np.isfinite(x) for x in interval):
+            if interval[0] > 0:
+                return "helps"
+            if interval[1] < 0:
+                return "hurts"
+            return f"no clear effect (the {name + ' ' if name else ''}95% CI spans 0)"
     if e_std is None:
         return "helps (1 run, no error bar)" if e > 0 else "does not help (1 run, no error bar)"
     if e - e_std > 0:
@@ -97,10 +105,13 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
         "## Relative enhancement E (%) of LHF over each backbone",
         "",
-        "E = (mean return over the whole test curve with LHF - without) / without, averaged over runs; "
-        "± is the std of the per-run E over paired runs (same seed and split); the verdicts below "
-        "also give the 95% confidence interval of the mean per-run E (Student t). Paper values in "
-        "parentheses.",
+        "E = (mean return over the whole test curve with LHF - without) / without, the returns "
+        "averaged over runs; ± is the std of the per-run E over paired runs (same seed and split). "
+        "The verdicts below give the 95% confidence interval of the mean per-run E (Student t) and "
+        "judge on the paired t-test of the runs' return differences (LHF - baseline): an effect "
+        "counts when that difference's 95% interval excludes 0 (a per-run E divides by its run's "
+        "baseline return, so one weak baseline widens E's interval whatever the differences are). "
+        "Paper values in parentheses.",
     ]
     if exp.dicp_plan_modes() == (False, True):
         gated = exp.evaluate.get("plan_gate", "always") != "always"
@@ -137,7 +148,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
             std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
             entries.append(f"{_pct(r['E'])}{std}{paper_s}")
             per_col[c].append(r["E"])
-            verdicts.append((label, r["backbone"], r["E"], r["E_std"], r.get("E_ci95")))
+            verdicts.append((label, r))
         lines.append(f"| {label} | " + " | ".join(entries) + " |")
     avg = []
     for c in cols:
@@ -148,9 +159,16 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     if len(cells) > 1:
         lines.append("| average | " + " | ".join(avg) + " |")
     lines += ["", "## Where LHF helps, and where it does not", ""]
-    for label, backbone, e, e_std, ci in verdicts:
-        interval = f" (95% CI of the per-run E: {_pct(ci[0])} .. {_pct(ci[1])})" if ci else ""
-        lines.append(f"- {label}, {backbone}: E {_pct(e)}%{interval} -> {verdict(e, e_std, ci)}")
+    for label, r in verdicts:
+        ci, diff_ci = r.get("E_ci95"), r.get("diff_ci95")
+        facts = [f"95% CI of the per-run E: {_pct(ci[0])} .. {_pct(ci[1])}"] if ci else []
+        if diff_ci:
+            facts.append(
+                f"paired return difference {r['diff']:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f}"
+            )
+        interval = f" ({'; '.join(facts)})" if facts else ""
+        judged = verdict(r["E"], r["E_std"], ci, diff_ci)
+        lines.append(f"- {label}, {r['backbone']}: E {_pct(r['E'])}%{interval} -> {judged}")
     lines += [
         "",
         "## Absolute returns",

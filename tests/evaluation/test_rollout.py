@@ -261,6 +261,10 @@ def test_compare_relative_enhancement_by_hand(tmp_path):
     # 95% CI of the mean per-run E: 0.75 +- t(0.975, 1) x s / sqrt(2), s = 0.3536, t = 12.706
     half = 12.7062 * np.std([0.5, 1.0], ddof=1) / np.sqrt(2)
     assert np.allclose(row["E_ci95"], [0.75 - half, 0.75 + half], atol=1e-4)
+    # the paired return differences 3 - 2, 4 - 2: mean 1.5, s = 0.7071, the verdict's interval
+    assert row["baseline_run_means"] == [2, 2] and row["lhf_run_means"] == [3, 4]
+    half = 12.7062 * np.std([1.0, 2.0], ddof=1) / np.sqrt(2)
+    assert row["diff"] == 1.5 and np.allclose(row["diff_ci95"], [1.5 - half, 1.5 + half], atol=1e-4)
     assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.50 | +75.0 ± 25.0 |" in r["table"]
     assert (tmp_path / "cmp" / "compare.png").stat().st_size > 0
     assert (tmp_path / "cmp" / "compare.md").read_text().startswith("| darkroom |")

@@ -12,8 +12,10 @@ import pytest
 from lhf_hf.reproduce.index import render_index, write_index
 
 
-def _row(backbone, e, e_std, ci=None, base=4.0, lhf=5.0):
-    return dict(backbone=backbone, E=e, E_std=e_std, E_ci95=ci, baseline_mean=base, lhf_mean=lhf)
+def _row(backbone, e, e_std, ci=None, base=4.0, lhf=5.0, **paired):
+    return dict(
+        backbone=backbone, E=e, E_std=e_std, E_ci95=ci, baseline_mean=base, lhf_mean=lhf, **paired
+    )
 
 
 def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None, selections=None) -> None:
@@ -36,6 +38,8 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     _table(tmp_path, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
         _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
         _row("DICP + plan", -0.1, 0.5),
+        # E's interval spans 0 but the paired return differences' excludes it: the latter decides
+        _row("DPT", 2.37, 2.66, [-4.6, 11.6], 1.49, 5.04, diff=3.54, diff_ci95=[1.47, 5.61]),
     ]}], {"darkroom": {"ad": 90.7, "dicp": 19.0}}, stage_s=7200, selections=[
         {"env_id": "darkroom", "arm": "lhf", "run": r, "mean_return_selected_unique": k,
          "mean_return_rejected": j} for r, (k, j) in enumerate([(10.0, 12.0), (11.0, 13.0)])
@@ -53,6 +57,10 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     assert "`lhf reproduce b-noisy --preset cpu --runs 3`; 2.00 h of stage time" in text
     assert (
         "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | helps | 4.33 -> 9.51 |" in text
+    )
+    assert (
+        "| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0 | - | helps "
+        "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text

@@ -257,6 +257,21 @@ def test_sweep_arms_and_verdicts():
         verdict(0.10, 0.50, (0.01, 0.19)) == "helps"
         and verdict(-0.1, 0.5, (-0.2, -0.01)) == "hurts"
     )
+    # with the paired return differences' interval, that decides: the demo's lightweight AD on
+    # noisy data (baseline 0.600 / 1.900 / 1.979, LHF 4.954 / 5.458 / 4.696): per-run E 7.26 /
+    # 1.87 / 1.37, whose interval spans 0, while every difference is +2.7 .. +4.4
+    diffs = np.array([4.954 - 0.600, 5.458 - 1.900, 4.696 - 1.979])
+    half = 4.3027 * diffs.std(ddof=1) / np.sqrt(3)  # t(0.975, 2)
+    d_ci = (diffs.mean() - half, diffs.mean() + half)
+    assert d_ci[0] > 0
+    assert verdict(2.37, 2.66, (-4.6, 11.6), d_ci) == "helps"
+    assert verdict(-0.05, 0.04, (-0.16, 0.07), (-1.1, -0.2)) == "hurts"
+    assert (
+        verdict(0.5, 0.1, (0.2, 0.8), (-0.3, 2.0))
+        == "no clear effect (the paired return difference's 95% CI spans 0)"
+    )
+    # an unrecorded or non-finite difference interval falls back to E's
+    assert verdict(0.10, 0.50, (0.01, 0.19), (float("nan"), 1.0)) == "helps"
 
 
 @pytest.mark.slow
