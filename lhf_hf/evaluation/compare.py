@@ -234,13 +234,23 @@ def _t_interval(x: np.ndarray) -> list[float]:
     return [float(x.mean() - half), float(x.mean() + half)]
 
 
+def _difference(r: dict) -> str:
+    """The mean paired return difference (LHF - baseline) and its 95% interval, the verdict's
+    test (``reproduce.report.verdict``); ``-`` without 2+ paired runs."""
+    ci = r.get("diff_ci95")
+    if r.get("diff") is None or not ci:
+        return "-"
+    return f"{r['diff']:+.2f} ({ci[0]:+.2f} .. {ci[1]:+.2f})"
+
+
 def markdown_table(rows: list[dict], env_id: str) -> str:
     def pm(m, s):
         return f"{m:.2f} ± {s:.2f}"
 
     lines = [
-        f"| {env_id} | baseline | LHF | E (%) | final baseline | final LHF | runs |",
-        "|---|---|---|---|---|---|---|",
+        f"| {env_id} | baseline | LHF | E (%) | final baseline | final LHF | runs "
+        "| paired difference (95% CI) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         e = f"{100 * r['E']:+.1f}" + (
@@ -248,6 +258,7 @@ def markdown_table(rows: list[dict], env_id: str) -> str:
         )
         lines.append(
             f"| {r['backbone']} | {pm(r['baseline_mean'], r['baseline_std'])} | {pm(r['lhf_mean'], r['lhf_std'])} "
-            f"| {e} | {r['baseline_final']:.2f} | {r['lhf_final']:.2f} | {r['runs_baseline']}/{r['runs_lhf']} |"
+            f"| {e} | {r['baseline_final']:.2f} | {r['lhf_final']:.2f} | {r['runs_baseline']}/{r['runs_lhf']} "
+            f"| {_difference(r)} |"
         )
     return "\n".join(lines)

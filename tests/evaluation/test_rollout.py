@@ -266,6 +266,7 @@ def test_compare_relative_enhancement_by_hand(tmp_path):
     half = 12.7062 * np.std([1.0, 2.0], ddof=1) / np.sqrt(2)
     assert row["diff"] == 1.5 and np.allclose(row["diff_ci95"], [1.5 - half, 1.5 + half], atol=1e-4)
     assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.50 | +75.0 ± 25.0 |" in r["table"]
+    assert r["table"].rstrip().endswith(f"| 2/2 | +1.50 ({1.5 - half:+.2f} .. {1.5 + half:+.2f}) |")
     assert (tmp_path / "cmp" / "compare.png").stat().st_size > 0
     assert (tmp_path / "cmp" / "compare.md").read_text().startswith("| darkroom |")
 
