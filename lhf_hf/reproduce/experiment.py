@@ -185,7 +185,7 @@ class Experiment:
         # the message says which spec and stage.
         for stage, build in [
             ("collect", lambda: [self.collect_config(env, 0) for env in self.envs]),
-            ("filter", lambda: self.filter_arms(0)),
+            ("filter", self._checked_filter_arms),
             (  # the shared settings alone first: their errors are named as theirs
                 "train",
                 lambda: TrainConfig(dataset="-", objective=self.objectives[0], out="-", **shared),
@@ -221,6 +221,19 @@ class Experiment:
     @property
     def half(self) -> bool:
         return bool(self.collect.get("half", False))
+
+    def _checked_filter_arms(self) -> list[tuple[str, FilterConfig]]:
+        """The arms of run 0, and every env's R_max known: the scores need each task's maximal
+        return, the env's optimal return (gridworlds) or ``filter.r_max`` (Meta-World), which
+        would otherwise fail only at the first filter stage, after the collection."""
+        arms = self.filter_arms(0)
+        for env in self.envs:
+            if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
+                raise ValueError(
+                    f"{env} has no known optimal return: set filter: {{r_max: ...}} (the "
+                    "maximal episode return its scores divide by)"
+                )
+        return arms
 
     def filter_arms(self, run: int) -> list[tuple[str, FilterConfig]]:
         """``[(arm name, FilterConfig)]``: ``lhf``, or one arm per value of the sweep."""

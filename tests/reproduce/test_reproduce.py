@@ -80,6 +80,15 @@ def test_spec_errors(tmp_path):
         load_experiment(_spec(tmp_path, {**TINY, "objectives": ["bc"]}, "obj"), "quick")
     with pytest.raises(ValueError, match="plan_dicp must be true, false or 'both'"):
         load_experiment(_spec(tmp_path, {**TINY, "evaluate": {"plan_dicp": "yes"}}, "pl"), "quick")
+    # an env without a known optimal return needs filter.r_max, named at load, not after collecting
+    mw = {**TINY, "envs": ["metaworld-reach-wall"], "collect": {"collector": "sb3"}}
+    with pytest.raises(
+        ValueError,
+        match=r"mw: filter: metaworld-reach-wall has no known optimal return: set filter",
+    ):
+        load_experiment(_spec(tmp_path, mw, "mw"), "quick")
+    exp = load_experiment(_spec(tmp_path, {**mw, "filter": {"r_max": 1000}}, "mw2"), "quick")
+    assert exp.filter_arms(0)[0][1].r_max == 1000
 
 
 @pytest.mark.parametrize(
