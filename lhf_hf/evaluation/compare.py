@@ -13,6 +13,7 @@ runs in the given order) when both sides have the same number of runs.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,11 @@ def load_results(path: str) -> dict:
         problem = "no 'objective' / 'env_id'"
     elif not isinstance(r.get("mean_curve"), list) or not r["mean_curve"]:
         problem = "no 'mean_curve' list"
+    elif not all(
+        isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+        for x in r["mean_curve"]
+    ):
+        problem = "'mean_curve' holds a value that is not a finite number"
     else:
         rollouts = r["config"].get("rollouts", 1)
         if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 1:
@@ -189,7 +195,8 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             # The verdict's test: the paired t-test on the runs' return differences (same seed
             # and split). A per-run ratio divides by that run's baseline return, so one weak
             # baseline (0.6 against 1.9) makes E's spread, and its interval, as wide as the
-            # effect however alike the differences are; the difference has the sign of E.
+            # effect however alike the differences are; with positive baseline returns (the
+            # gridworlds' and Meta-World's are >= 0) the difference has the sign of E.
             diff_ci = _t_interval(mf - mb)
         tail = max(1, b.shape[1] // 10)
         rows.append(

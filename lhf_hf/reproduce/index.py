@@ -44,12 +44,13 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
     lo, hi = _pair(r.get("E_ci95")) or (None, None)
     p = _num((paper.get(env_id) or {}).get(_objective(r["backbone"])))
-    if e is None:  # E undefined (a baseline return of 0) or not recorded
+    diff_ci = _pair(r.get("diff_ci95"))
+    if e is None and diff_ci is None:  # E undefined (a baseline return of 0) or not recorded
         judged = "undefined (no finite E)"
     else:
         interval = (lo, hi) if lo is not None and hi is not None else None
-        diff_ci = _pair(r.get("diff_ci95"))
-        judged = verdict(e, std, interval, diff_ci).replace("|", "\\|")  # a pipe would end the cell
+        judged = verdict(math.nan if e is None else e, std, interval, diff_ci)
+        judged = judged.replace("|", "\\|")  # a pipe would end the table cell
     returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
     diff, diff_ci = _num(r.get("diff")), _pair(r.get("diff_ci95"))
     paired = (

@@ -313,6 +313,8 @@ def test_compare_errors(tmp_path):
         ("noconfig", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1]}', "no 'config'"),
         ("r0", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1], "config": {"rollouts": 0}}', "rollouts must be an integer >= 1, got 0"),
         ("rstr", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1], "config": {"rollouts": "1"}}', "got '1'"),
+        ("nan", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1, NaN], "config": {}}', "not a finite number"),
+        ("text", '{"objective": "ad", "env_id": "darkroom", "mean_curve": [1, "2"], "config": {}}', "not a finite number"),
     ]:  # fmt: skip
         (bad / name).mkdir(parents=True)
         (bad / name / "eval_results.json").write_text(text)

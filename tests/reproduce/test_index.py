@@ -40,6 +40,8 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
         _row("DICP + plan", -0.1, 0.5),
         # E's interval spans 0 but the paired return differences' excludes it: the latter decides
         _row("DPT", 2.37, 2.66, [-4.6, 11.6], 1.49, 5.04, diff=3.54, diff_ci95=[1.47, 5.61]),
+        # a baseline returning 0: E undefined (null in JSON), the difference still decides
+        _row("DICP", None, None, None, 0.0, 5.04, diff=5.04, diff_ci95=[4.07, 6.0]),
     ]}], {"darkroom": {"ad": 90.7, "dicp": 19.0}}, stage_s=7200, selections=[
         {"env_id": "darkroom", "arm": "lhf", "run": r, "mean_return_selected_unique": k,
          "mean_return_rejected": j} for r, (k, j) in enumerate([(10.0, 12.0), (11.0, 13.0)])
@@ -62,6 +64,7 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
         "| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0 | - | helps "
         "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
+    assert "| darkroom | DICP | - | - | +19.0 | helps | 0.00 -> 5.04 (difference +5.04" in text
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text
     # an arm other than lhf is named; no paper value, one run (no std)

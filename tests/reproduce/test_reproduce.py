@@ -279,6 +279,9 @@ def test_sweep_arms_and_verdicts():
         verdict(0.5, 0.1, (0.2, 0.8), (-0.3, 2.0))
         == "no clear effect (the paired return difference's 95% CI spans 0)"
     )
+    # a baseline returning 0 leaves E undefined, but not the difference, which then decides
+    assert verdict(float("nan"), None, None, (4.07, 6.0)) == "helps"
+    assert verdict(float("nan"), None, None, None).startswith("undefined")
     # an unrecorded or non-finite difference interval falls back to E's
     assert verdict(0.10, 0.50, (0.01, 0.19), (float("nan"), 1.0)) == "helps"
 
