@@ -24,15 +24,12 @@ def verdict(
     direction); E and its interval say by how much. Disclosed: the test was moved from E's interval
     to the differences after E's interval spanned 0 on the main job's runs whose three differences
     were all +2.7 .. +4.4 (docs/reproduce.md)."""
-    for interval, name in ((diff_ci, "paired return difference's"), (ci, "")):
-        if name == "" and not np.isfinite(e):  # no difference recorded, and no finite E
-            return "undefined (baseline return 0)"
-        if interval is not None and len(interval) == 2 and all(np.isfinite(x) for x in interval):
-            if interval[0] > 0:
-                return "helps"
-            if interval[1] < 0:
-                return "hurts"
-            return f"no clear effect (the {name + ' ' if name else ''}95% CI spans 0)"
+    if _finite_pair(diff_ci):
+        return _judge(diff_ci, "the paired return difference's 95% CI spans 0")
+    if not np.isfinite(e):
+        return "undefined (baseline return 0)"
+    if _finite_pair(ci):
+        return _judge(ci, "the 95% CI spans 0")
     if e_std is None:
         return "helps (1 run, no error bar)" if e > 0 else "does not help (1 run, no error bar)"
     if e - e_std > 0:
@@ -40,6 +37,19 @@ def verdict(
     if e + e_std < 0:
         return "hurts"
     return "no clear effect (|E| within its std)"
+
+
+def _finite_pair(interval) -> bool:
+    return interval is not None and len(interval) == 2 and all(np.isfinite(x) for x in interval)
+
+
+def _judge(interval, spans: str) -> str:
+    """An interval of the effect: above 0 helps, below 0 hurts, otherwise no clear effect."""
+    if interval[0] > 0:
+        return "helps"
+    if interval[1] < 0:
+        return "hurts"
+    return f"no clear effect ({spans})"
 
 
 def command_line(name: str, preset: str, runs: int, narrowed_to=None) -> str:
