@@ -320,8 +320,8 @@ def render(est: dict, header: str) -> str:
             f"{est['to_run']} of {n} stages to run: {total} for the {timed} with a rate; unknown for "
             f"the other {est['unknown']} (marked '?', {len(est['missing'])} kind(s) of stage never "
             "measured: a finished stage records its rate, so running the same env, objective and "
-            "model preset once for a few steps, e.g. benchmarks/calibration/gridworlds.yaml, "
-            "completes the estimate)"
+            "model preset once for a few steps (the specs in benchmarks/calibration/: "
+            "gridworlds.yaml, planning.yaml, metaworld.yaml) completes the estimate)"
         )
     else:
         lines.append(f"{est['to_run']} of {n} stages to run: {total}")
