@@ -76,6 +76,9 @@ def _table(folder: Path, summary: dict) -> list[str]:
     narrowed = exp["objectives"] if exp.get("narrowed") else None
     facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed)}`"]
     facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
+    # A preset's budget changes over time (the cpu presets went from 50 to 100 histories per goal):
+    # the recorded sizes tell tables made by the same command line apart.
+    facts += _budget(exp)
     facts += [str(summary["created"])] if summary.get("created") else []
     lines = [
         f"## {head}",
@@ -94,6 +97,29 @@ def _table(folder: Path, summary: dict) -> list[str]:
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]
     return lines + _kept_line(summary.get("selections") or []) + [""]
+
+
+def _budget(exp: dict) -> list[str]:
+    """``["100 histories per goal", "3,000 training steps"]`` (``"ad 3,000 / dicp 4,000 training
+    steps"`` when the table's backbones differ) from the recorded experiment config; nothing for
+    what it does not hold."""
+    out = []
+    histories = (exp.get("collect") or {}).get("histories")
+    if isinstance(histories, int):
+        out.append(f"{histories} histories per goal")
+    train = exp.get("train") or {}
+    steps = train.get("max_steps")
+    if isinstance(steps, int):
+        by = train.get("by_objective") or {}
+        per = {
+            o: (by.get(o) or {}).get("max_steps", steps) if isinstance(by.get(o), dict) else steps
+            for o in exp.get("objectives") or []
+        }
+        if len(set(per.values())) > 1:
+            out.append(" / ".join(f"{o} {n:,}" for o, n in per.items()) + " training steps")
+        else:
+            out.append(f"{next(iter(per.values()), steps):,} training steps")
+    return out
 
 
 def _kept_line(selections: list[dict]) -> list[str]:

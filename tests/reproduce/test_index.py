@@ -132,3 +132,32 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 2 and "unreadable results.json in: broken" in bad.stderr
     assert "## broken" in (tmp_path / "README.md").read_text()  # written all the same
+
+
+def test_index_states_each_tables_recorded_budget(tmp_path):
+    """Two tables from the same command line, made before and after a preset changed, differ in the
+    histories per goal and the steps their results.json recorded; the index shows both."""
+    rows = [{"env_id": "darkroom", "arm": "lhf", "rows": [_row("AD", 0.1, 0.1)]}]
+    _table(tmp_path, "old", rows, {})
+    _table(tmp_path, "new", rows, {})
+    _table(tmp_path, "none", rows, {})  # nothing recorded: no budget facts, no error
+    for name, collect, train, objectives in [
+        ("old", {"histories": 50}, {"max_steps": 1000}, ["ad", "dicp"]),
+        ("new", {"histories": 100}, {"max_steps": 3000, "by_objective": {"dicp": {"max_steps": 4000}}},
+         ["ad", "dicp"]),
+    ]:  # fmt: skip
+        path = tmp_path / f"{name}-cpu" / "results.json"
+        summary = json.loads(path.read_text())
+        summary["experiment"].update(collect=collect, train=train, objectives=objectives)
+        path.write_text(json.dumps(summary))
+    text, bad = render_index(tmp_path)
+    assert bad == []
+    assert (
+        "`lhf reproduce old --preset cpu --runs 3`; 50 histories per goal; 1,000 training steps;"
+        in text
+    )
+    assert (
+        "`lhf reproduce new --preset cpu --runs 3`; 100 histories per goal; ad 3,000 / dicp 4,000 "
+        "training steps;" in text
+    )
+    assert "`lhf reproduce none --preset cpu --runs 3`; 2026-12-02T00:00:00+0000." in text
