@@ -258,8 +258,6 @@ class Experiment:
         out: str,
         resume: bool = False,
     ) -> TrainConfig:
-        settings = {k: v for k, v in self.train.items() if k != "by_objective"}
-        settings.update((self.train.get("by_objective") or {}).get(objective, {}))
         return TrainConfig(
             dataset=dataset,
             selection=selection,
@@ -268,7 +266,7 @@ class Experiment:
             seed=run,
             resume=resume,
             overwrite=not resume,
-            **settings,
+            **train_settings(self.train, objective),
         )
 
     def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:
@@ -290,6 +288,14 @@ class Experiment:
 #: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
 #: evaluations (which ``plan_dicp: both`` runs from the same settings)
 PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
+
+
+def train_settings(train: dict, objective: str) -> dict:
+    """One backbone's ``train`` settings: the shared ones, then its ``by_objective`` overrides
+    (``by_objective: null``: none).  Also reads a report's recorded ``train`` (index.py)."""
+    settings = {k: v for k, v in train.items() if k != "by_objective"}
+    settings.update((train.get("by_objective") or {}).get(objective) or {})
+    return settings
 
 
 def experiment_names() -> list[str]:

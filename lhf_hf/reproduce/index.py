@@ -18,6 +18,7 @@ from urllib.parse import quote
 
 from lhf_hf.utils.io import write_text_atomic
 
+from .experiment import train_settings
 from .report import _objective, _pct, command_line, verdict
 
 INDEX_FILE = "README.md"
@@ -52,7 +53,7 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
         judged = verdict(math.nan if e is None else e, std, interval, diff_ci)
         judged = judged.replace("|", "\\|")  # a pipe would end the table cell
     returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
-    diff, diff_ci = _num(r.get("diff")), _pair(r.get("diff_ci95"))
+    diff = _num(r.get("diff"))
     paired = (
         f" (difference {diff:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f})"
         if diff is not None and diff_ci is not None
@@ -108,17 +109,12 @@ def _budget(exp: dict) -> list[str]:
     if isinstance(histories, int):
         out.append(f"{histories} histories per goal")
     train = exp.get("train") or {}
-    steps = train.get("max_steps")
-    if isinstance(steps, int):
-        by = train.get("by_objective") or {}
-        per = {
-            o: (by.get(o) or {}).get("max_steps", steps) if isinstance(by.get(o), dict) else steps
-            for o in exp.get("objectives") or []
-        }
-        if len(set(per.values())) > 1:
-            out.append(" / ".join(f"{o} {n:,}" for o, n in per.items()) + " training steps")
-        else:
-            out.append(f"{next(iter(per.values()), steps):,} training steps")
+    steps = {o: train_settings(train, o).get("max_steps") for o in exp.get("objectives") or []}
+    steps = {o: n for o, n in steps.items() if isinstance(n, int)}
+    if len(set(steps.values())) > 1:
+        out.append(" / ".join(f"{o} {n:,}" for o, n in steps.items()) + " training steps")
+    elif steps:
+        out.append(f"{next(iter(steps.values())):,} training steps")
     return out
 
 
