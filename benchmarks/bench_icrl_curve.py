@@ -44,9 +44,11 @@ from lhf_hf.configs import TrainConfig
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.rollout import rollout
 from lhf_hf.evaluation.task_batch import make_task_batch
+from lhf_hf.histories.reader import load_histories
 from lhf_hf.modeling import load_model
 from lhf_hf.training import build_trainer
 from lhf_hf.utils.io import save_figure_atomic, write_json_atomic
+from lhf_hf.utils.outputs import OutputError, output_folder, preflight
 from lhf_hf.utils.versions import library_versions
 
 # Darkroom levels to reach: the DICP paper's AD and DICP at 50 episodes; issue 23's DPT target.
@@ -104,15 +106,23 @@ def evaluate_checkpoint(
     return {"last10": last10, "whole_curve": whole, "context": res.context}
 
 
+def _flag(k: str, v) -> str:
+    """``--key value`` as a command line writes it (a list as its items)."""
+    return f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
+
+
 def _command_flags(args: dict) -> str:
-    """The flags that reproduce ``args`` (a switch is written only when it is on)."""
+    """The flags that reproduce ``args`` (a switch is written only when it is on, an unset option
+    not at all: ``--steps None`` would not parse back on ``--resume``)."""
     flags = []
     for k, v in args.items():
         flag = f"--{k.replace('_', '-')}"
+        if v is None:
+            continue
         if isinstance(v, bool):
             flags += [flag] if v else []
         else:
-            flags.append(f"{flag} {' '.join(map(str, v)) if isinstance(v, list) else v}")
+            flags.append(_flag(k, v))
     return " ".join(flags)
 
 
@@ -132,8 +142,10 @@ def main() -> None:
     p.add_argument("--dataset", required=True)
     p.add_argument("--objectives", nargs="+", default=["ad", "dpt", "dicp"],
                    choices=["ad", "dpt", "dicp"])  # fmt: skip
-    p.add_argument("--minutes", type=float, default=15.0)
-    p.add_argument("--every", type=float, default=2.5, help="minutes between checkpoints")
+    p.add_argument("--minutes", type=float, default=None,
+                   help="a wall-clock budget of training minutes (default 15; not with --steps)")  # fmt: skip
+    p.add_argument("--every", type=float, default=None,
+                   help="minutes between checkpoints (default 2.5; not with --steps)")  # fmt: skip
     p.add_argument("--episodes", type=int, default=50)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="evaluation seeds")
     p.add_argument("--train-seeds", type=int, nargs="+", default=[0],
@@ -155,27 +167,26 @@ def main() -> None:
                    help="keep the models --out's curve.json holds (same settings; --train-seeds "
                         "may add models) and train the missing ones")  # fmt: skip
     args = p.parse_args()
-    if args.steps is None:
-        if args.every <= 0 or args.minutes < args.every:
-            raise SystemExit("error: need 0 < --every <= --minutes")
-        if args.every_steps is not None:
-            raise SystemExit("error: --every-steps goes with --steps")
-    else:
-        every = args.steps if args.every_steps is None else args.every_steps
-        if args.steps < 1 or not 1 <= every <= args.steps:
-            raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
-        if args.steps % every:  # the Trainer saves at multiples only
-            raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
+    _check_flags(args)
     resume = args.resume
     del args.resume  # not part of what the results measure
     out = Path(args.out)
     objectives = {}
+    if (out / "curve.json").exists() and not resume:
+        raise SystemExit(
+            f"error: {out / 'curve.json'} exists: pass --resume to keep its models and "
+            "train the missing ones, or another --out"
+        )
+    try:  # before any training: a model is never trained only to find it cannot be written
+        env_id = load_histories(args.dataset).env_id
+        for objective in args.objectives:  # the TrainConfig validates preset, lr, batch size
+            _train_config(args, objective, 0, out="unused")
+        _check_work(Path(args.work), args.dataset)
+        preflight(out, "icrl-curve", resume=resume, inputs=[args.dataset], legacy=["curve.json"],
+                  resumable=True)  # fmt: skip
+    except (FileNotFoundError, ValueError, RuntimeError, OutputError) as exc:
+        raise SystemExit(f"error: {exc}") from None
     if (out / "curve.json").exists():
-        if not resume:
-            raise SystemExit(
-                f"error: {out / 'curve.json'} exists: pass --resume to keep its models and "
-                "train the missing ones, or another --out"
-            )
         try:
             done = json.loads((out / "curve.json").read_text())
             recorded = p.parse_args(shlex.split(done["command"])[2:])
@@ -189,9 +200,7 @@ def main() -> None:
         now = _measured(args)
         diff = {k: (v, now.get(k)) for k, v in _measured(recorded).items() if now.get(k) != v}
         if diff:
-            shown = ", ".join(
-                f"--{k.replace('_', '-')} {a} (now {b})" for k, (a, b) in diff.items()
-            )
+            shown = ", ".join(f"{_flag(k, a)} (now {_flag(k, b)})" for k, (a, b) in diff.items())
             raise SystemExit(
                 f"error: --resume: {out / 'curve.json'} was measured with other settings: {shown}"
             )
@@ -202,39 +211,96 @@ def main() -> None:
         "machine": platform.processor() or platform.machine(),
         "torch_threads": torch.get_num_threads(),
         "versions": library_versions(["torch", "transformers"]),
-        "levels": LEVELS,
+        "env_id": env_id,
+        "levels": LEVELS if env_id == "darkroom" else {},  # published levels: Darkroom only
         "objectives": objectives,
     }
-    for train_seed in args.train_seeds:  # seed-major: every objective's first model comes first
-        for objective in args.objectives:
-            runs = results["objectives"].get(objective, {}).get("runs", [])
-            if any(r["train_seed"] == train_seed for r in runs):
-                print(f"{objective} train seed {train_seed}: in {out / 'curve.json'} already")
-                continue
-            run = {"train_seed": train_seed, **train_and_evaluate(args, objective, train_seed)}
-            entry = results["objectives"].setdefault(objective, {"tasks": run["tasks"], "runs": []})
-            entry["runs"].append(run)
-            write_json_atomic(results, out / "curve.json")  # after each model: nothing lost
-    plot(results, out / "curve.png", args.episodes)
+    with output_folder(out, "icrl-curve", resume=resume, inputs=[args.dataset],
+                       legacy=["curve.json"], resumable=True):  # fmt: skip
+        for train_seed in args.train_seeds:  # seed-major: every objective's first model first
+            for objective in args.objectives:
+                runs = results["objectives"].get(objective, {}).get("runs", [])
+                if any(r["train_seed"] == train_seed for r in runs):
+                    print(f"{objective} train seed {train_seed}: in {out / 'curve.json'} already")
+                    continue
+                run = {"train_seed": train_seed, **train_and_evaluate(args, objective, train_seed)}
+                entry = results["objectives"].setdefault(
+                    objective, {"tasks": run["tasks"], "runs": []}
+                )
+                entry["runs"].append(run)
+                # after each model, the record and its plot: an interrupt loses no model
+                write_json_atomic(results, out / "curve.json")
+                plot(results, out / "curve.png", args.episodes)
+        if not (out / "curve.png").exists():  # every model was recorded already: re-plot
+            plot(results, out / "curve.png", args.episodes)
+
+
+def _check_flags(args) -> None:
+    """Flags that contradict each other, or a value out of range: an error before any work."""
+    if args.steps is None:
+        args.minutes = 15.0 if args.minutes is None else args.minutes
+        args.every = 2.5 if args.every is None else args.every
+        if args.every <= 0 or args.minutes < args.every:
+            raise SystemExit("error: need 0 < --every <= --minutes")
+        if args.every_steps is not None:
+            raise SystemExit("error: --every-steps goes with --steps")
+    else:
+        if args.minutes is not None or args.every is not None:
+            raise SystemExit(
+                "error: --minutes and --every are a wall-clock budget: not with --steps"
+            )
+        every = args.steps if args.every_steps is None else args.every_steps
+        if args.steps < 1 or not 1 <= every <= args.steps:
+            raise SystemExit("error: need --steps >= 1 and 1 <= --every-steps <= --steps")
+        if args.steps % every:  # the Trainer saves at multiples only
+            raise SystemExit("error: --every-steps must divide --steps (the last step is saved)")
+    if args.episodes < 1:
+        raise SystemExit("error: need --episodes >= 1 (the curve's return is over the episodes)")
+    if args.plan and "dicp" not in args.objectives:
+        raise SystemExit("error: --plan evaluates DICP checkpoints: add dicp to --objectives")
+    if args.plan_gate != "always" and not args.plan:
+        raise SystemExit("error: --plan-gate applies to planning: add --plan")
+
+
+def _check_work(work: Path, dataset: str) -> None:
+    """The checkpoints go to new folders under ``work``: never inside the dataset (they would be
+    files the dataset's manifest does not know, and ``lhf verify`` would fail)."""
+    if work.exists() and not work.is_dir():
+        raise OutputError(f"--work {work} is a file, not a folder")
+    src = Path(dataset)
+    if src.exists() and (
+        work.resolve() == src.resolve() or src.resolve() in work.resolve().parents
+    ):
+        raise OutputError(f"--work {work} is inside the dataset {dataset}: choose another folder")
+
+
+def _train_config(args, objective: str, train_seed: int, out: str) -> TrainConfig:
+    if args.steps is None:  # a wall-clock budget: the cosine's end is out of reach (~constant lr)
+        max_steps, save_steps = 10**6, 10**9
+    else:
+        max_steps, save_steps = args.steps, args.every_steps or args.steps
+    return TrainConfig(dataset=args.dataset, objective=objective, out=out, preset=args.preset,
+                       max_steps=max_steps, batch_size=args.batch_size, lr=args.lr,
+                       save_steps=save_steps, logging_steps=100, seed=train_seed)  # fmt: skip
 
 
 def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
     Path(args.work).mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f"{objective}-", dir=args.work))  # new, never reused
-    if args.steps is None:  # a wall-clock budget: the cosine's end is out of reach (~constant lr)
-        max_steps, save_steps = 10**6, 10**9
+    if args.steps is None:
         clock = WallClockCheckpoints(args.every * 60, args.minutes * 60)
     else:
-        max_steps, save_steps, clock = args.steps, args.every_steps or args.steps, TrainingClock()
-    cfg = TrainConfig(dataset=args.dataset, objective=objective, out=str(work),
-                      preset=args.preset, max_steps=max_steps, batch_size=args.batch_size,
-                      lr=args.lr, save_steps=save_steps, logging_steps=100,
-                      seed=train_seed)  # fmt: skip
-    trainer, provenance = build_trainer(cfg)
-    trainer.add_callback(clock)
-    trainer.args.disable_tqdm = True
-    trainer.args.save_total_limit = None  # every checkpoint is evaluated
-    trainer.train()
+        clock = TrainingClock()
+    try:
+        trainer, provenance = build_trainer(_train_config(args, objective, train_seed, str(work)))
+        trainer.add_callback(clock)
+        trainer.args.disable_tqdm = True
+        trainer.args.save_total_limit = None  # every checkpoint is evaluated
+        trainer.train()
+    except BaseException:
+        if not any(work.iterdir()):
+            work.rmdir()  # our own folder, still empty: leave nothing behind
+        raise
     split_seed = int(provenance["dataset"]["split_seed"])
     tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)
     points = []
@@ -273,10 +339,14 @@ def plot(results: dict, path: Path, episodes: int) -> None:
             ax.errorbar(x, y.mean((0, 2)), yerr=spread, color=colour, ls=style,
                         marker="s" if key == "plan" else "o", capsize=3,
                         label=objective.upper() + label)  # fmt: skip
-        ax.axhline(LEVELS[objective], color=colour, ls="--", lw=0.8)
-    ax.set_xlabel("training wall time (minutes, 2-core CPU)")
+        if objective in results["levels"]:
+            ax.axhline(results["levels"][objective], color=colour, ls="--", lw=0.8)
+    ax.set_xlabel(f"training wall time (minutes, {results['torch_threads']} torch threads)")
     ax.set_ylabel(f"return, episodes {max(1, episodes - 9)}-{episodes} (unseen goals)")
-    ax.set_title("In-context return per training minute (dashed: published levels)")
+    levels = " (dashed: published levels)" if results["levels"] else ""
+    ax.set_title(
+        f"{results.get('env_id', 'darkroom')}: in-context return per training minute{levels}"
+    )
     ax.legend()
     fig.tight_layout()
     fig.set_dpi(120)  # savefig's default dpi is the figure's

@@ -304,7 +304,9 @@ def render(est: dict, header: str) -> str:
     lines += [
         "",
         f"Rates: 'here' = stages finished on this machine ({est['cpu']}) under the work folder; "
-        f"'reference' = lhf_hf/reproduce/rates.json ({est['reference_cpu']}).",
+        f"'reference' = lhf_hf/reproduce/rates.json ({est['reference_cpu']}); 'reference, CPU' = "
+        "a rate that table lacks, taken from the machine named (the AVX-512 Intel and the AVX2 "
+        "AMD machines differ up to ~2x).",
     ]
     if est["jobs"] > est["cores"]:
         lines.append(
@@ -317,8 +319,8 @@ def render(est: dict, header: str) -> str:
     if est["missing"]:
         timed = est["to_run"] - est["unknown"]
         lines.append(
-            f"{est['to_run']} of {n} stages to run: {total} for the {timed} with a rate; unknown for "
-            f"the other {est['unknown']} (marked '?', {len(est['missing'])} kind(s) of stage never "
+            f"{est['to_run']} of {n} stages to run: at least {total}, for the {timed} with a rate; "
+            f"unknown for the other {est['unknown']} (marked '?', {len(est['missing'])} kind(s) of stage never "
             "measured: a finished stage records its rate, so running the same env, objective and "
             "model preset once for a few steps (the specs in benchmarks/calibration/: "
             "gridworlds.yaml, planning.yaml, metaworld.yaml) completes the estimate)"

@@ -19,7 +19,7 @@ from urllib.parse import quote
 from lhf_hf.utils.io import write_text_atomic
 
 from .experiment import train_settings
-from .report import _objective, _pct, command_line, verdict
+from .report import _objective, _pct, command_line, default_out, verdict
 
 INDEX_FILE = "README.md"
 
@@ -75,7 +75,10 @@ def _table(folder: Path, summary: dict) -> list[str]:
     head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
     hours = _num(summary.get("stage_s"))
     narrowed = exp["objectives"] if exp.get("narrowed") else None
-    facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed)}`"]
+    # a table kept beside the command's default folder (another budget): --out names it
+    default = Path(default_out(exp["name"], exp["preset"], narrowed)).name
+    where = None if folder.name == default else f"{folder.parent.name}/{folder.name}"
+    facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where)}`"]
     facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
     # A preset's budget changes over time (the cpu presets went from 50 to 100 histories per goal):
     # the recorded sizes tell tables made by the same command line apart.

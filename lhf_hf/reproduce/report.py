@@ -52,10 +52,20 @@ def _judge(interval, spans: str) -> str:
     return f"no clear effect ({spans})"
 
 
-def command_line(name: str, preset: str, runs: int, narrowed_to=None) -> str:
+def default_out(name: str, preset: str, narrowed_to=None) -> str:
+    """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed."""
+    tail = "-" + "-".join(narrowed_to) if narrowed_to else ""
+    return f"results/{name}-{preset}{tail}"
+
+
+def command_line(
+    name: str, preset: str, runs: int, narrowed_to=None, out: str | None = None
+) -> str:
     """The ``lhf reproduce`` call that makes a table (``narrowed_to``: its objectives when only
-    some of the spec's were run)."""
+    some of the spec's were run; ``out``: its folder, written only when not the default one)."""
     tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
+    if out is not None and Path(out) != Path(default_out(name, preset, narrowed_to)):
+        tail += f" --out {out}"
     return f"lhf reproduce {name} --preset {preset} --runs {runs}{tail}"
 
 
@@ -110,7 +120,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines = [
         f"# {exp.title}",
         "",
-        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None)}`: "
+        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None, str(out))}`: "
         f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
         f"tasks per run). Paper: {exp.paper_table or '-'}.",
         "",

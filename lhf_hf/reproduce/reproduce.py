@@ -32,6 +32,7 @@ from lhf_hf.utils.versions import library_versions
 from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
 from .experiment import Experiment, load_experiment, spec_path
 from .parallel import check_jobs, run_stages, worker_command
+from .report import default_out as report_folder
 from .report import render_report
 from .stages import DONE_FILE, Stage, StageRunner
 
@@ -200,8 +201,7 @@ def reproduce(
 
 def default_out(exp: Experiment) -> str:
     """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed."""
-    tail = "-" + "-".join(exp.objectives) if exp.narrowed else ""
-    return f"results/{exp.name}-{exp.preset}{tail}"
+    return report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
 
 
 def snapshot_spec(

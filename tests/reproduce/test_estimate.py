@@ -143,10 +143,10 @@ def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path, mon
     text = render(est, "head")
     assert "[1/7] collect  collect: cached" in text
     assert "train base: to run, ~1.7 min (reference, 1 stage)" in text
-    assert "'reference' = lhf_hf/reproduce/rates.json (Ref)" in text
+    assert "'reference' = lhf_hf/reproduce/rates.json (Ref); 'reference, CPU' = a rate" in text
     assert (
-        "6 of 7 stages to run: ~3.5 min wall with --jobs 1 for the 3 with a rate; unknown for "
-        "the other 3 (marked '?', 2 kind(s) of stage never measured"
+        "6 of 7 stages to run: at least ~3.5 min wall with --jobs 1, for the 3 with a rate; "
+        "unknown for the other 3 (marked '?', 2 kind(s) of stage never measured"
     ) in text
     assert "exceeds the" not in text
     many = render(estimate(stages, tmp_path, jobs=64, reference=ref), "head")

@@ -96,7 +96,13 @@ def test_index_names_a_narrowed_table_s_command(tmp_path):
     summary = json.loads(path.read_text())
     summary["experiment"].update(narrowed=True, objectives=["dicp"])
     path.write_text(json.dumps(summary))
-    assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`" in render_index(tmp_path)[0]
+    # not the narrowed command's default folder (results/n-cpu-dicp): --out names it
+    assert (
+        f"`lhf reproduce n --preset cpu --runs 3 --objectives dicp --out {tmp_path.name}/n-cpu`"
+        in render_index(tmp_path)[0]
+    )
+    (tmp_path / "n-cpu").rename(tmp_path / "n-cpu-dicp")
+    assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`;" in render_index(tmp_path)[0]
 
 
 def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
