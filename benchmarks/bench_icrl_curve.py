@@ -116,12 +116,9 @@ def _command_flags(args: dict) -> str:
     not at all: ``--steps None`` would not parse back on ``--resume``)."""
     flags = []
     for k, v in args.items():
-        flag = f"--{k.replace('_', '-')}"
-        if v is None:
-            continue
         if isinstance(v, bool):
-            flags += [flag] if v else []
-        else:
+            flags += [f"--{k.replace('_', '-')}"] if v else []
+        elif v is not None:
             flags.append(_flag(k, v))
     return " ".join(flags)
 
