@@ -106,9 +106,14 @@ def evaluate_checkpoint(
     return {"last10": last10, "whole_curve": whole, "context": res.context}
 
 
+def _switch(k: str) -> str:
+    """The flag spelling of an argparse dest: ``train_seeds`` -> ``--train-seeds``."""
+    return f"--{k.replace('_', '-')}"
+
+
 def _flag(k: str, v) -> str:
     """``--key value`` as a command line writes it (a list as its items)."""
-    return f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
+    return f"{_switch(k)} {' '.join(map(str, v)) if isinstance(v, list) else v}"
 
 
 def _command_flags(args: dict) -> str:
@@ -117,7 +122,7 @@ def _command_flags(args: dict) -> str:
     flags = []
     for k, v in args.items():
         if isinstance(v, bool):
-            flags += [f"--{k.replace('_', '-')}"] if v else []
+            flags += [_switch(k)] if v else []
         elif v is not None:
             flags.append(_flag(k, v))
     return " ".join(flags)
