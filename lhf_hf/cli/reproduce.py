@@ -26,10 +26,33 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.reproduce import reproduce  # deferred: heavy (every stage's libraries)
 
     o = ReproduceOptions(**values(args, args.fields))
+    if o.export_stages is not None:
+        from lhf_hf.reproduce import export_experiment  # deferred: heavy, as above
+
+        n = export_experiment(o.experiment, o.export_stages, o.preset, o.runs, o.work, o.objectives)
+        print(
+            f"[lhf reproduce] exported to {o.export_stages}: {n['portable']} evaluation(s) and "
+            f"{n['records']} record(s) of other finished stages; {n['not_done']} stage(s) of "
+            f"the plan are not done in {o.work}. Elsewhere: lhf reproduce {o.experiment} "
+            f"--preset {o.preset} ... --import-stages {o.export_stages}"
+        )
+        return 0
     if o.estimate:
         from lhf_hf.reproduce import estimate_experiment  # deferred: heavy, as above
 
-        print(estimate_experiment(o.experiment, o.preset, o.runs, o.work, o.jobs, o.objectives))
+        text = estimate_experiment(
+            o.experiment, o.preset, o.runs, o.work, o.jobs, o.objectives, o.import_stages
+        )
+        print(text)
         return 0
-    reproduce(o.experiment, o.preset, o.runs, o.out, o.work, jobs=o.jobs, objectives=o.objectives)
+    reproduce(
+        o.experiment,
+        o.preset,
+        o.runs,
+        o.out,
+        o.work,
+        jobs=o.jobs,
+        objectives=o.objectives,
+        import_from=o.import_stages,
+    )
     return 0

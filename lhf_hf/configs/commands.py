@@ -118,6 +118,12 @@ class ReproduceOptions:
     objectives: only these of the spec's backbones (e.g. ``dicp``); their stages are the full
         table's, so a later full run reuses them; the report (default ``results/NAME-PRESET-dicp``)
         covers only them.  Unset: all.
+    import_stages: folders of finished stages that ``--export-stages`` wrote (on another machine,
+        or committed), copied into the work folder first: their evaluations are not run again, nor
+        the trainings they alone needed.  With ``--estimate``: imported, then estimated.
+    export_stages: run nothing; copy the finished evaluations of this plan (and the records of its
+        other finished stages) from the work folder into this folder, to commit or carry to
+        another machine (~0.1 MB per evaluation; datasets and checkpoints are not copied).
     """
 
     experiment: str
@@ -128,10 +134,17 @@ class ReproduceOptions:
     jobs: int = 1
     estimate: bool = False
     objectives: list[str] | None = None
+    import_stages: list[str] | None = None
+    export_stages: str | None = None
 
     def __post_init__(self) -> None:
         if self.jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {self.jobs}")
+        if self.export_stages is not None and (self.estimate or self.import_stages):
+            raise ValueError(
+                "export_stages runs nothing else: drop estimate and import_stages (import, run "
+                "or estimate with one call, export with another)"
+            )
         if self.runs is not None and self.runs < 1:
             raise ValueError(f"runs must be >= 1, got {self.runs}")
 

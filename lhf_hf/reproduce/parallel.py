@@ -62,6 +62,8 @@ def run_stages(
     work = runner.work
     known = {s.hash for s in stages}
     for s in stages:
+        if s.done(work):
+            continue  # reported as cached: what it read may be left out (``needed_stages``)
         missing = [i.label for i in s.inputs if i.hash not in known]
         if missing:
             raise ValueError(f"stage {s.label!r} reads {missing}, which are not in the plan")
@@ -75,13 +77,13 @@ def run_stages(
             for stage in list(pending):
                 if failed:
                     break
-                if any(i.hash not in finished for i in stage.inputs):
-                    continue  # an input is still running (or waiting)
                 if stage.done(work):
                     pending.remove(stage)
                     runner.run(stage)  # reported as cached, nothing runs
                     finished.add(stage.hash)
                     continue
+                if any(i.hash not in finished for i in stage.inputs):
+                    continue  # an input is still running (or waiting)
                 if not can_start(stage, len(running), jobs):
                     break  # first come, first served: a whole-machine stage is not starved
                 pending.remove(stage)

@@ -32,9 +32,10 @@ from lhf_hf.utils.versions import library_versions
 from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
 from .experiment import Experiment, load_experiment, spec_path
 from .parallel import check_jobs, run_stages, worker_command
+from .portable import export_stages, import_stages
 from .report import default_out as report_folder
 from .report import render_report
-from .stages import DONE_FILE, Stage, StageRunner
+from .stages import Stage, StageRunner, needed_stages, stage_wall
 
 
 def _arms(exp: Experiment) -> list[str]:
@@ -163,6 +164,7 @@ def reproduce(
     echo=print,
     jobs: int = 1,
     objectives: list[str] | None = None,
+    import_from: list[str | Path] | None = None,
 ) -> Path:
     """Run experiment ``name`` at ``preset``; returns the path of ``report.md``.
 
@@ -170,12 +172,15 @@ def reproduce(
         (``parallel.py``; 1.3x on 2 cores for trainings).
     objectives: only these of the spec's backbones (None: all); the report is then named after
         them (``results/NAME-PRESET-dicp``) and a later full run reuses their stages.
+    import_from: folders of finished stages exported elsewhere (``export_experiment``), copied
+        into ``work`` first; what they hold is not run again (``portable.py``).
     """
     check_jobs(jobs)
     exp = load_experiment(name, preset, runs, objectives)
     out = Path(out or default_out(exp))
     work = Path(work)
     stages, evals = plan_stages(exp, work)
+    _import(import_from, work, stages, echo)
     echo(
         f"[lhf reproduce] {exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
@@ -233,19 +238,67 @@ def estimate_experiment(
     work: str | Path = "runs/reproduce",
     jobs: int = 1,
     objectives: list[str] | None = None,
+    import_from: list[str | Path] | None = None,
+    echo=print,
 ) -> str:
     """``lhf reproduce ... --estimate``: the stages, which are cached, and the time the rest takes
-    on this machine (``estimate.py``), as text; runs nothing."""
+    on this machine (``estimate.py``), as text; runs nothing (``import_from`` is imported first,
+    as by ``reproduce``, so the estimate covers what is left)."""
     check_jobs(jobs)
     exp = load_experiment(name, preset, runs, objectives)
-    stages, _ = plan_stages(exp, Path(work))
-    est = estimate(stages, work, jobs)
+    stages, evals = plan_stages(exp, Path(work))
+    _import(import_from, Path(work), stages, echo)
+    est = estimate(needed_stages(stages, Path(work), _targets(evals)), work, jobs)
     head = (
         f"[lhf reproduce --estimate] {exp.name}, preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
         f"work folder {work}"
     )
     return render(est, head)
+
+
+def export_experiment(
+    name: str,
+    dest: str | Path,
+    preset: str = "quick",
+    runs: int | None = None,
+    work: str | Path = "runs/reproduce",
+    objectives: list[str] | None = None,
+) -> dict:
+    """``lhf reproduce ... --export-stages DEST``: copy this plan's finished evaluations (and the
+    records of its other finished stages) from ``work`` to ``DEST``, to commit or carry to another
+    machine and import there (``portable.py``); runs nothing.  Returns the counts."""
+    exp = load_experiment(name, preset, runs, objectives)
+    stages, _ = plan_stages(exp, Path(work))
+    about = {
+        "experiment": exp.name,
+        "preset": preset,
+        "runs": exp.runs,
+        "objectives": list(exp.objectives),
+        "versions": library_versions(["transformers", "accelerate"]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    return export_stages(stages, work, dest, about)
+
+
+def _targets(evals: dict) -> list[Stage]:
+    """The stages the report reads: every evaluation and every selection."""
+    return [s for group in evals.values() for s in group]
+
+
+def _import(folders, work: Path, plan: list[Stage], echo) -> None:
+    for folder in folders or ():
+        n = import_stages(folder, work, plan)
+        echo(
+            f"[lhf reproduce] imported from {folder}: {n['imported']} evaluation(s), "
+            f"{n['records']} record(s), {n['present']} already here; {n['in_plan']} of its "
+            f"{n['total']} stages are in this plan"
+        )
+        if n["total"] and not n["in_plan"]:
+            echo(
+                f"[lhf reproduce] warning: none of {folder}'s stages is in this plan (another "
+                "experiment, preset, run count or code version?): nothing of it is reused"
+            )
 
 
 #: Files of a report folder written before output markers existed (``utils.outputs``).
@@ -263,8 +316,14 @@ def _run(
     command,
 ) -> Path:
     t0 = time.perf_counter()
-    runner = StageRunner(work, total=len(stages), echo=echo)
-    run_stages(stages, runner, jobs, command)
+    todo = needed_stages(stages, work, _targets(evals))
+    runner = StageRunner(work, total=len(todo), echo=echo)
+    if len(todo) < len(stages):
+        echo(
+            f"[lhf reproduce] {len(stages) - len(todo)} stage(s) left out: what reads them is done "
+            "(imported evaluations)"
+        )
+    run_stages(todo, runner, jobs, command)
     cells = []
     for env in exp.envs:
         for arm in _arms(exp):
@@ -292,7 +351,7 @@ def _run(
         "stages": runner.log,
         "wall_s": wall,
         # what the whole table cost, whichever call ran each stage (a cached stage's own record)
-        "stage_s": round(sum(_stage_wall(s.path(work)) for s in stages), 1),
+        "stage_s": round(sum(stage_wall(s.path(work)) for s in stages), 1),
         "jobs": jobs,
         "versions": library_versions(["transformers", "accelerate"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -321,14 +380,6 @@ def _selection_summary(folder: Path) -> dict:
     """A finished filter stage's selection summary (the fields above; absent ones are None)."""
     found = json.loads((folder / "selection" / CONFIG_FILE).read_text()).get("summary") or {}
     return {k: found.get(k) for k in SELECTION_FIELDS}
-
-
-def _stage_wall(folder: Path) -> float:
-    """The wall time a finished stage recorded (0 when it recorded none)."""
-    try:
-        return float(json.loads((folder / DONE_FILE).read_text()).get("wall_s") or 0)
-    except (OSError, ValueError):
-        return 0.0
 
 
 def load_summary(out: str | Path) -> dict:

@@ -24,6 +24,9 @@ from lhf_hf.utils.io import write_json_atomic
 
 DONE_FILE = "stage.json"
 LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
+#: A finished stage's ``stage.json`` imported without its output (``portable.py``): what it cost,
+#: for the report's stage time; the stage itself is not done here.
+RECORD_FILE = "stage.record.json"
 
 
 def config_hash(config: dict) -> str:
@@ -79,7 +82,7 @@ class StageRunner:
         self.echo(f"{head} ...")
         # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
         # covers only part of its work and is no rate for later estimates.
-        resumed = out.is_dir() and any(p.name != LOG_FILE for p in out.iterdir())
+        resumed = out.is_dir() and any(p.name not in (LOG_FILE, RECORD_FILE) for p in out.iterdir())
         t0 = time.perf_counter()
         out.mkdir(parents=True, exist_ok=True)
         stage.fn(out)
@@ -97,3 +100,31 @@ class StageRunner:
         self.echo(f"{head}: done in {wall} s")
         self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})
         return out
+
+
+def needed_stages(stages: list[Stage], work: Path, targets: list[Stage]) -> list[Stage]:
+    """``stages`` (in plan order) less those this call need not run: a stage not done is needed
+    when it is a target (what the report reads) or some needed stage reads it.  A training whose
+    evaluations are all done (imported from another machine's cache, ``portable.py``) is left out,
+    and so is the collection only it read.  Done stages stay (they are reported as cached)."""
+    work = Path(work)
+    needed: set[str] = set()
+    todo = list(targets)
+    while todo:
+        s = todo.pop()
+        if s.hash in needed:
+            continue
+        needed.add(s.hash)
+        if not s.done(work):
+            todo.extend(s.inputs)
+    return [s for s in stages if s.hash in needed or s.done(work)]
+
+
+def stage_wall(folder: Path) -> float:
+    """The wall time a finished stage recorded, here or in an imported record (0 when none)."""
+    for name in (DONE_FILE, RECORD_FILE):
+        try:
+            return float(json.loads((Path(folder) / name).read_text()).get("wall_s") or 0)
+        except (OSError, ValueError):
+            continue
+    return 0.0
