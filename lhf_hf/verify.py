@@ -4,7 +4,7 @@ Two checks: the manifest (every file's SHA-256, recorded in ``.lhf_output.json``
 that wrote the folder ended: missing, changed and added files) and the kind's own deepest check
 (a dataset: every data file hashed against its fingerprint and every task's returns recomputed from
 its rewards; a selection: its source dataset unchanged; a checkpoint: it loads and its dataset is
-unchanged).  Folders written before manifests get the second check only, and a note.
+unchanged; exported stages: each evaluation's files against the export's checksums).  Folders written before manifests get the second check only, and a note.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 from lhf_hf.filtering.artifact import SelectionArtifact
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.hub import artifact_for
+from lhf_hf.reproduce.portable import check_export
 from lhf_hf.training.artifact import CheckpointArtifact
 from lhf_hf.utils.hub import HubArtifact
 from lhf_hf.utils.outputs import MARKER, check_manifest
@@ -24,6 +25,8 @@ CHECKS: dict[str, type[HubArtifact]] = {
     "selection": SelectionArtifact,
     "model": CheckpointArtifact,
 }
+#: kinds checked by a function of the folder (-> problems) rather than an artifact
+FOLDER_CHECKS = {"stages": check_export}  # exported stages: each evaluation's files and config
 
 
 def verify(path: str | Path) -> dict:
@@ -46,6 +49,8 @@ def verify(path: str | Path) -> dict:
         kind = next(k for k, a in CHECKS.items() if a is artifact)
     if artifact is not None:
         problems += artifact.verify(path)
+    if kind in FOLDER_CHECKS:
+        problems += FOLDER_CHECKS[kind](path)
     return {
         "path": str(path),
         "kind": kind,

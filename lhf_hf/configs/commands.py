@@ -119,8 +119,9 @@ class ReproduceOptions:
         table's, so a later full run reuses them; the report (default ``results/NAME-PRESET-dicp``)
         covers only them.  Unset: all.
     import_stages: folders of finished stages that ``--export-stages`` wrote (on another machine,
-        or committed), copied into the work folder first: their evaluations are not run again, nor
-        the trainings they alone needed.  With ``--estimate``: imported, then estimated.
+        or committed), copied into the work folder first (each checked whole before): their
+        evaluations are not run again, nor the trainings they alone needed.  With ``--estimate``:
+        imported (a write to the work folder), then estimated.  Put it after the experiment's name.
     export_stages: run nothing; copy the finished evaluations of this plan (and the records of its
         other finished stages) from the work folder into this folder, to commit or carry to
         another machine (~0.1 MB per evaluation; datasets and checkpoints are not copied).
@@ -141,9 +142,10 @@ class ReproduceOptions:
         if self.jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {self.jobs}")
         if self.export_stages is not None and (self.estimate or self.import_stages):
+            given = "--estimate" if self.estimate else "--import-stages"
             raise ValueError(
-                "export_stages runs nothing else: drop estimate and import_stages (import, run "
-                "or estimate with one call, export with another)"
+                f"--export-stages runs nothing else: drop {given} (import, run or estimate with "
+                "one call, export with another)"
             )
         if self.runs is not None and self.runs < 1:
             raise ValueError(f"runs must be >= 1, got {self.runs}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -232,6 +233,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         + ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
         + ".",
         "",
+        *_imported_lines(summary.get("imported") or []),
         "Exact configuration (`results.json` also lists every stage folder):",
         "",
         "```yaml",
@@ -240,3 +242,18 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
     ]
     return "\n".join(lines)
+
+
+def _imported_lines(imported: list[dict]) -> list[str]:
+    """Which evaluations were made on another machine (``--import-stages``)."""
+    if not imported:
+        return []
+    origins = sorted(
+        {(i.get("from"), i.get("created"), json.dumps(i.get("versions"))) for i in imported}
+    )
+    lines = [f"{len(imported)} evaluation(s) were imported (`--import-stages`), made elsewhere:"]
+    for where, created, versions in origins:
+        v = json.loads(versions) or {}
+        names = ", ".join(f"{k} {x}" for k, x in v.items())
+        lines.append(f"- from `{where}`, exported {created}" + (f" ({names})" if names else ""))
+    return [*lines, ""]

@@ -35,7 +35,7 @@ from .parallel import check_jobs, run_stages, worker_command
 from .portable import export_stages, import_stages
 from .report import default_out as report_folder
 from .report import render_report
-from .stages import Stage, StageRunner, needed_stages, stage_wall
+from .stages import DONE_FILE, Stage, StageRunner, needed_stages, stage_wall
 
 
 def _arms(exp: Experiment) -> list[str]:
@@ -180,7 +180,7 @@ def reproduce(
     out = Path(out or default_out(exp))
     work = Path(work)
     stages, evals = plan_stages(exp, work)
-    _import(import_from, work, stages, echo)
+    _import(import_from, work, stages, echo, exp)
     echo(
         f"[lhf reproduce] {exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
@@ -247,7 +247,7 @@ def estimate_experiment(
     check_jobs(jobs)
     exp = load_experiment(name, preset, runs, objectives)
     stages, evals = plan_stages(exp, Path(work))
-    _import(import_from, Path(work), stages, echo)
+    _import(import_from, Path(work), stages, echo, exp)
     est = estimate(needed_stages(stages, Path(work), _targets(evals)), work, jobs)
     head = (
         f"[lhf reproduce --estimate] {exp.name}, preset {preset}: {exp.runs} run(s) x "
@@ -286,19 +286,25 @@ def _targets(evals: dict) -> list[Stage]:
     return [s for group in evals.values() for s in group]
 
 
-def _import(folders, work: Path, plan: list[Stage], echo) -> None:
+def _import(folders, work: Path, plan: list[Stage], echo, exp: Experiment) -> None:
     for folder in folders or ():
         n = import_stages(folder, work, plan)
         echo(
             f"[lhf reproduce] imported from {folder}: {n['imported']} evaluation(s), "
-            f"{n['records']} record(s), {n['present']} already here; {n['in_plan']} of its "
-            f"{n['total']} stages are in this plan"
+            f"{n['records']} record(s), {n['present']} already here; {n['evaluations_in_plan']} "
+            f"of its {n['evaluations']} evaluation(s) are in this plan"
         )
-        if n["total"] and not n["in_plan"]:
-            echo(
-                f"[lhf reproduce] warning: none of {folder}'s stages is in this plan (another "
-                "experiment, preset, run count or code version?): nothing of it is reused"
+        if n["evaluations"] and not n["evaluations_in_plan"]:
+            about = n["about"]
+            theirs = (about.get("experiment"), about.get("preset"), about.get("runs"))
+            ours = (exp.name, exp.preset, exp.runs)
+            why = (
+                f"it was exported from {theirs[0]} --preset {theirs[1]} --runs {theirs[2]}, "
+                f"this is {ours[0]} --preset {ours[1]} --runs {ours[2]}"
+                if theirs != ours
+                else "same experiment, preset and runs: another code version, or a changed spec?"
             )
+            echo(f"[lhf reproduce] warning: none of {folder}'s evaluations is in this plan ({why})")
 
 
 #: Files of a report folder written before output markers existed (``utils.outputs``).
@@ -352,6 +358,10 @@ def _run(
         "wall_s": wall,
         # what the whole table cost, whichever call ran each stage (a cached stage's own record)
         "stage_s": round(sum(stage_wall(s.path(work)) for s in stages), 1),
+        # evaluations made on another machine (``--import-stages``): where from, which versions
+        "imported": [
+            {"stage": s.label, **origin} for s in stages if (origin := _imported(s.path(work)))
+        ],
         "jobs": jobs,
         "versions": library_versions(["transformers", "accelerate"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -380,6 +390,14 @@ def _selection_summary(folder: Path) -> dict:
     """A finished filter stage's selection summary (the fields above; absent ones are None)."""
     found = json.loads((folder / "selection" / CONFIG_FILE).read_text()).get("summary") or {}
     return {k: found.get(k) for k in SELECTION_FIELDS}
+
+
+def _imported(folder: Path) -> dict | None:
+    """Where a finished stage's output was imported from (None: made here)."""
+    try:
+        return json.loads((folder / DONE_FILE).read_text()).get("imported")
+    except (OSError, ValueError):
+        return None
 
 
 def load_summary(out: str | Path) -> dict:

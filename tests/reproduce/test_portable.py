@@ -8,6 +8,8 @@ selection), but not run 0's trainings, whose evaluations came with the import.
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -16,10 +18,12 @@ import pytest
 from lhf_hf.cli.main import main
 from lhf_hf.reproduce import estimate_experiment, export_experiment, load_experiment, reproduce
 from lhf_hf.reproduce.parallel import run_stages
-from lhf_hf.reproduce.portable import INDEX_FILE, import_stages
-from lhf_hf.reproduce.reproduce import plan_stages
+from lhf_hf.reproduce.portable import INDEX_FILE, ExportError, import_stages
+from lhf_hf.reproduce.reproduce import _import, plan_stages
 from lhf_hf.reproduce.stages import DONE_FILE, RECORD_FILE, Stage, StageRunner, needed_stages
+from lhf_hf.utils.io import sha256_file
 from lhf_hf.utils.outputs import OutputError
+from lhf_hf.verify import verify
 from tests.reproduce.test_reproduce import TINY, _spec
 
 
@@ -47,10 +51,10 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     assert "8 of 10 stages to run" in text
 
     lines: list[str] = []
-    reproduce(
+    report = reproduce(
         spec, "quick", 2, tmp_path / "out_b", work_b, echo=lines.append, import_from=[carried]
     )
-    assert any("0 evaluation(s), 4 record(s), 2 already here" in s for s in lines)  # 2nd import
+    assert any("0 evaluation(s), 0 record(s), 6 already here" in s for s in lines)  # 2nd import
     summary = json.loads((tmp_path / "out_b" / "results.json").read_text())
     ran = sorted(_kind(s) for s in summary["stages"] if not s["cached"])
     assert ran == ["collect", "collect", "evaluate", "evaluate", "filter", "filter"] + ["train"] * 2
@@ -62,7 +66,8 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
         assert not tr.done(work_b) and (tr.path(work_b) / RECORD_FILE).exists()
         assert not (tr.path(work_b) / "model").exists()
     # run 0's evaluations are A's, byte for byte, and the report reads them
-    for ev in [s for s in stages if s.kind == "evaluate" and "run 0" in s.label]:
+    run0_evals = [s for s in stages if s.kind == "evaluate" and "run 0" in s.label]
+    for ev in run0_evals:
         ours = (ev.path(work_b) / "eval" / "eval_results.json").read_bytes()
         assert ours == (ev.path(work_a) / "eval" / "eval_results.json").read_bytes()
     row = summary["cells"][0]["rows"][0]
@@ -76,67 +81,147 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     )
     assert records > 0
     assert summary["stage_s"] == pytest.approx(recorded + records, abs=0.2)
+    # the report names what was made elsewhere
+    assert [i["stage"] for i in summary["imported"]] == [ev.label for ev in run0_evals]
+    assert "2 evaluation(s) were imported (`--import-stages`)" in report.read_text()
+    # exported on again, to a third machine: run 0's trainings go as the records they are here
+    assert export_experiment(spec, tmp_path / "again", "quick", 2, work_b) == {
+        "portable": 4,
+        "records": 8,
+        "not_done": 0,
+    }
     # the recollected run 0 selects what A's did (one seed reaches every RNG)
     sel_a = json.loads((tmp_path / "out_a" / "results.json").read_text())["selections"][0]
     assert summary["selections"][0] == sel_a
 
 
-def test_import_errors_and_a_foreign_export(tmp_path):
-    spec = _spec(tmp_path, TINY)
-    exp = load_experiment(spec, "quick", 2)
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """Run 0 of the tiny two-run table finished in work ``a`` and exported to ``carried``."""
+    root = tmp_path_factory.mktemp("portable")
+    spec = _spec(root, TINY)
+    reproduce(spec, "quick", runs=1, out=root / "out", work=root / "a", echo=lambda s: None)
+    export_experiment(spec, root / "carried", "quick", runs=2, work=root / "a")
+    return spec, root
+
+
+def _copy(root: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "copy"
+    shutil.copytree(root / "carried", dst)
+    return dst
+
+
+def test_an_edited_or_malformed_export_is_refused_whole(exported, tmp_path):
+    spec, root = exported
+    plan, _ = plan_stages(load_experiment(spec, "quick", 2), tmp_path)
     work = tmp_path / "w"
-    plan, _ = plan_stages(exp, work)
-    with pytest.raises(ValueError, match="is not an export of finished stages"):
-        import_stages(tmp_path, work, plan)
-    # an export whose evaluation was edited after it was made
-    ev = next(s for s in plan if s.kind == "evaluate")
-    src = tmp_path / "exp"
-    (src / "evaluate" / ev.hash[:12] / "eval").mkdir(parents=True)
-    done = {"kind": "evaluate", "label": ev.label, "config": ev.config, "wall_s": 1.0}
-    (src / "evaluate" / ev.hash[:12] / DONE_FILE).write_text(json.dumps(done))
-    entry = {
-        "kind": "evaluate",
-        "label": ev.label,
-        "hash": ev.hash,
-        "path": f"evaluate/{ev.hash[:12]}",
-    }
-    (src / INDEX_FILE).write_text(json.dumps({"format": 1, "stages": [entry]}))
-    assert import_stages(src, work, plan)["imported"] == 1 and ev.done(work)
-    assert import_stages(src, work, plan)["present"] == 1  # a second import changes nothing
-    done["config"] = {**ev.config, "episodes": 999}
-    (src / "evaluate" / ev.hash[:12] / DONE_FILE).write_text(json.dumps(done))
-    with pytest.raises(ValueError, match="does not match its recorded config"):
-        import_stages(src, tmp_path / "w2", plan)
-    (src / INDEX_FILE).write_text(json.dumps({"format": 7, "stages": []}))
-    with pytest.raises(ValueError, match="format 7, this version reads 1"):
+    with pytest.raises(ExportError, match="does not exist"):
+        import_stages(tmp_path / "nowhere", work, plan)
+    with pytest.raises(ExportError, match="is not an export of finished stages"):
+        import_stages(root, work, plan)
+    # returns edited after the export: the checksums say so, and nothing is copied
+    src = _copy(root, tmp_path)
+    index = json.loads((src / INDEX_FILE).read_text())
+    second = next(e for e in index["stages"][::-1] if e["kind"] == "evaluate")
+    results = src / second["path"] / "eval" / "eval_results.json"
+    results.write_text(results.read_text().replace('"mean_return": ', '"mean_return": 99 + '))
+    with pytest.raises(ExportError, match="changed since it was exported .*eval_results.json"):
         import_stages(src, work, plan)
-    # an export of another plan: nothing of it is in this one, and the import says so
-    from lhf_hf.reproduce.reproduce import _import
+    assert verify(root / "carried")["problems"] == []
+    assert "changed since it was exported" in verify(src)["problems"][0]
+    assert not work.exists()  # checked whole before the first copy
+    # a config edited in stage.json and its checksum with it: the hash still tells
+    shutil.rmtree(src)
+    src = _copy(root, tmp_path)
+    done_path = src / second["path"] / DONE_FILE
+    done = json.loads(done_path.read_text())
+    done["config"]["episodes"] = 999
+    done_path.write_text(json.dumps(done))
+    index["stages"][index["stages"].index(second)]["files"][DONE_FILE] = sha256_file(done_path)
+    (src / INDEX_FILE).write_text(json.dumps(index))
+    with pytest.raises(ExportError, match="does not match its recorded config"):
+        import_stages(src, work, plan)
+    # entries that would write outside the work folder or read outside the export
+    good = json.loads((root / "carried" / INDEX_FILE).read_text())
+    record = next(e for e in good["stages"] if e["kind"] == "train")
+    for bad, message in [
+        ({**record, "kind": "../evil"}, "unknown kind '../evil'"),
+        ({**record, "path": "../../etc/passwd"}, "path is '../../etc/passwd', expected"),
+        ({**record, "hash": "x"}, "hash is not a SHA-256"),
+        ({"kind": "train"}, "is not {kind, label, hash, path}"),
+    ]:
+        (src / INDEX_FILE).write_text(json.dumps({**good, "stages": [bad]}))
+        with pytest.raises(ExportError, match=re.escape(message)):
+            import_stages(src, work, plan)
+    for stages in (None, "x"):
+        (src / INDEX_FILE).write_text(json.dumps({**good, "stages": stages}))
+        with pytest.raises(ExportError, match="'stages' is not a list"):
+            import_stages(src, work, plan)
+    (src / INDEX_FILE).write_text(json.dumps({**good, "format": 7}))
+    with pytest.raises(ExportError, match="format 7, this version reads 1"):
+        import_stages(src, work, plan)
+    assert not (tmp_path / "evil").exists() and not work.exists()
 
+
+def test_imports_copy_only_this_plans_stages_once_and_say_what_matched(exported, tmp_path):
+    spec, root = exported
+    work = tmp_path / "w"
+    plan, _ = plan_stages(load_experiment(spec, "quick", 2), work)
+    n = import_stages(root / "carried", work, plan)
+    assert (n["imported"], n["records"], n["present"], n["evaluations_in_plan"]) == (2, 4, 0, 2)
+    again = import_stages(root / "carried", work, plan)  # a second import changes nothing
+    assert (again["imported"], again["records"], again["present"]) == (0, 0, 6)
+    imported = [s for s in plan if s.kind == "evaluate" and s.done(work)]
+    origin = json.loads((imported[0].path(work) / DONE_FILE).read_text())["imported"]
+    assert origin["from"] == str((root / "carried").resolve()) and origin["versions"]
+    # another spec (one setting differs): nothing of the export is in its plan, nothing copied
+    other = json.loads(json.dumps(TINY))
+    other["presets"]["quick"]["evaluate"]["episodes"] = 3
+    other_spec = _spec(tmp_path, other, "tiny")
+    exp = load_experiment(other_spec, "quick", 2)
+    plan2, _ = plan_stages(exp, tmp_path / "w2")
     lines: list[str] = []
-    done["config"] = ev.config
-    (src / "evaluate" / ev.hash[:12] / DONE_FILE).write_text(json.dumps(done))
-    (src / INDEX_FILE).write_text(json.dumps({"format": 1, "stages": [entry]}))
-    _import([src], tmp_path / "w3", [Stage("evaluate", "x", {"z": 1}, print)], lines.append)
-    assert "warning: none of" in lines[-1]
+    _import([root / "carried"], tmp_path / "w2", plan2, lines.append, exp)
+    assert "0 of its 2 evaluation(s) are in this plan" in lines[0]
+    assert "warning: none of" in lines[1] and "changed spec" in lines[1]
+    assert not list((tmp_path / "w2").glob("evaluate/*"))
+    exp1 = load_experiment(spec, "quick", 1)
+    _import([root / "carried"], tmp_path / "w3", [], lines.append, exp1)
+    assert (
+        "exported from tiny --preset quick --runs 2, this is tiny --preset quick --runs 1"
+        in lines[-1]
+    )
 
 
-def test_export_refuses_a_foreign_folder_and_the_cli_checks_its_flags(tmp_path, capsys):
-    spec = _spec(tmp_path, TINY)
+def test_export_refuses_what_it_would_lose_and_the_cli_checks_its_flags(exported, tmp_path, capsys):
+    spec, root = exported
     mine = tmp_path / "notes"
     mine.mkdir()
     (mine / "todo.txt").write_text("mine")
     with pytest.raises(OutputError):
-        export_experiment(spec, mine, "quick", work=tmp_path / "w")
+        export_experiment(spec, mine, "quick", runs=2, work=root / "a")
     assert (mine / "todo.txt").read_text() == "mine"
-    out = tmp_path / "carried"
-    assert (
-        main(["reproduce", spec, "--work", str(tmp_path / "w"), "--export-stages", str(out)]) == 0
-    )
-    assert "exported to" in capsys.readouterr().out
-    assert json.loads((out / INDEX_FILE).read_text())["stages"] == []  # nothing done yet
-    assert main(["reproduce", spec, "--export-stages", str(out), "--estimate"]) == 1
-    assert "export_stages runs nothing else" in capsys.readouterr().err
+    with pytest.raises(ExportError, match="does not exist: nothing to export"):
+        export_experiment(spec, tmp_path / "e", "quick", work=tmp_path / "typo")
+    with pytest.raises(ExportError, match="inside the work folder"):
+        export_experiment(spec, root / "a" / "e", "quick", work=root / "a")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ExportError, match="no evaluation of this plan is finished"):
+        export_experiment(spec, tmp_path / "e", "quick", work=tmp_path / "empty")
+    # a good export is not replaced by one that lacks an evaluation of it
+    carried = _copy(root, tmp_path)
+    less = tmp_path / "less"
+    shutil.copytree(root / "a", less)
+    next(less.glob(f"evaluate/*/{DONE_FILE}")).unlink()
+    with pytest.raises(ExportError, match="holds 1 evaluation"):
+        export_experiment(spec, carried, "quick", 2, less)
+    export_experiment(spec, carried, "quick", 2, root / "a")  # the same again: replaced
+    assert main(["reproduce", spec, "--work", str(root / "a"), "--runs", "2",
+                 "--export-stages", str(tmp_path / "cli")]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "2 evaluation(s) and 4 record(s)" in out and "--runs 2 --import-stages" in out
+    assert main(["reproduce", spec, "--export-stages", str(carried), "--estimate"]) == 1
+    assert "--export-stages runs nothing else: drop --estimate" in capsys.readouterr().err
     assert main(["reproduce", spec, "--work", str(tmp_path / "w"), "--estimate",
                  "--import-stages", str(tmp_path)]) == 1  # fmt: skip
     assert "is not an export of finished stages" in capsys.readouterr().err
