@@ -30,7 +30,7 @@ import shutil
 from pathlib import Path
 
 from lhf_hf.utils.io import sha256_file, write_json_atomic
-from lhf_hf.utils.outputs import output_folder
+from lhf_hf.utils.outputs import check_manifest, output_folder
 
 from .stages import DONE_FILE, LOG_FILE, RECORD_FILE, Stage, config_hash
 
@@ -124,11 +124,16 @@ def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about
             "--runs or --objectives?): nothing to export"
         )
     keep = {s.hash for s in done if s.kind in PORTABLE}
-    if (dest / INDEX_FILE).is_file():
-        try:
+    if dest.is_dir() and any(dest.iterdir()):
+        try:  # an earlier export (someone's folder: output_folder refuses it below)
             old = {e["hash"] for e in read_index(dest)["stages"] if e["kind"] in PORTABLE}
-        except ExportError:
-            old = set()  # unreadable: output_folder decides whether it may be replaced
+        except ExportError as exc:
+            if (dest / INDEX_FILE).exists():
+                raise ExportError(
+                    f"{dest} holds an export whose index cannot be read ({exc}): it may hold "
+                    "evaluations this one would drop; export to another folder"
+                ) from None
+            old = set()
         lost = old - keep
         if lost:
             raise ExportError(
@@ -202,16 +207,26 @@ def check_export(src: str | Path) -> list[str]:
     return problems
 
 
-def import_stages(src: str | Path, work: str | Path, plan: list[Stage]) -> dict:
-    """Copy the stages of ``plan`` exported to ``src`` into ``work`` (those not done there).
+def import_stages(src: str | Path, work: str | Path, plan: list[Stage], dry: bool = False) -> dict:
+    """Copy the stages of ``plan`` exported to ``src`` into ``work`` (those not done there);
+    ``dry``: only check the export (raises as the import would), copy nothing.
 
     The whole export is checked before anything is copied (``ExportError`` names what is wrong).
     Returns the counts: ``{"imported": n, "records": n, "present": n, "evaluations_in_plan": n,
     "evaluations": n, "about": stages.json less its list}``."""
     src, work = Path(src), Path(work)
     index = read_index(src)
+    if work.resolve().is_relative_to(src.resolve()):
+        raise ExportError(f"the work folder {work} is inside the export {src}: use another --work")
+    kind, problems = check_manifest(src)
+    if kind is not None and problems:  # stages.json or a record edited after the export
+        raise ExportError(
+            f"{src} changed since it was exported ({problems[0]}): nothing was imported"
+        )
     planned = {s.hash for s in plan}
     checked = [(e, _read_stage(src, e)) for e in index["stages"]]
+    if dry:
+        return {}
     about = {k: v for k, v in index.items() if k != "stages"}
     counts = {"imported": 0, "records": 0, "present": 0, "about": about}
     counts["evaluations"] = sum(e["kind"] in PORTABLE for e, _ in checked)
@@ -244,9 +259,9 @@ def _copy_in(path: Path, target: Path, done: dict) -> None:
     """``path`` becomes ``target`` whole or not at all, its ``stage.json`` = ``done``: a copy
     beside it, then a rename; what an interrupted stage left there is removed after."""
     target.parent.mkdir(parents=True, exist_ok=True)
+    for stale in target.parent.glob(f".{target.name}.importing-*"):  # of an interrupted import
+        shutil.rmtree(stale, ignore_errors=True)
     tmp = target.parent / f".{target.name}.importing-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
     shutil.copytree(path, tmp)
     write_json_atomic(done, tmp / DONE_FILE)
     old = None

@@ -222,7 +222,13 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines += [
         "## Provenance",
         "",
-        f"{len(summary['stages'])} stages ({cached} from cache), {ran:.0f} s of stage time in this call"
+        f"{len(summary['stages'])} stages ({cached} from cache"
+        + (
+            f"; {summary['left_out']} left out: what reads them was imported"
+            if summary.get("left_out")
+            else ""
+        )
+        + f"), {ran:.0f} s of stage time in this call"
         f" ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once)"
         + (
             f"; all stages, whichever call ran them: {summary['stage_s'] / 3600:.2f} h of stage time"

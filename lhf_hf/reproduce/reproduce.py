@@ -287,6 +287,8 @@ def _targets(evals: dict) -> list[Stage]:
 
 
 def _import(folders, work: Path, plan: list[Stage], echo, exp: Experiment) -> None:
+    for folder in folders or ():  # every folder checked before the first copy
+        import_stages(folder, work, plan, dry=True)
     for folder in folders or ():
         n = import_stages(folder, work, plan)
         echo(
@@ -358,6 +360,7 @@ def _run(
         "wall_s": wall,
         # what the whole table cost, whichever call ran each stage (a cached stage's own record)
         "stage_s": round(sum(stage_wall(s.path(work)) for s in stages), 1),
+        "left_out": len(stages) - len(todo),  # not needed: what reads them is done (imported)
         # evaluations made on another machine (``--import-stages``): where from, which versions
         "imported": [
             {"stage": s.label, **origin} for s in stages if (origin := _imported(s.path(work)))

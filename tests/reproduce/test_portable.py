@@ -84,6 +84,10 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     # the report names what was made elsewhere
     assert [i["stage"] for i in summary["imported"]] == [ev.label for ev in run0_evals]
     assert "2 evaluation(s) were imported (`--import-stages`)" in report.read_text()
+    assert (
+        summary["left_out"] == 2
+        and "2 left out: what reads them was imported" in report.read_text()
+    )
     # exported on again, to a third machine: run 0's trainings go as the records they are here
     assert export_experiment(spec, tmp_path / "again", "quick", 2, work_b) == {
         "portable": 4,
@@ -139,6 +143,9 @@ def test_an_edited_or_malformed_export_is_refused_whole(exported, tmp_path):
     done_path.write_text(json.dumps(done))
     index["stages"][index["stages"].index(second)]["files"][DONE_FILE] = sha256_file(done_path)
     (src / INDEX_FILE).write_text(json.dumps(index))
+    with pytest.raises(ExportError, match=r"changed since it was exported \(evaluate/"):
+        import_stages(src, work, plan)  # the export's own manifest
+    (src / ".lhf_output.json").unlink()  # without it, the hash still tells
     with pytest.raises(ExportError, match="does not match its recorded config"):
         import_stages(src, work, plan)
     # entries that would write outside the work folder or read outside the export
@@ -161,6 +168,14 @@ def test_an_edited_or_malformed_export_is_refused_whole(exported, tmp_path):
     with pytest.raises(ExportError, match="format 7, this version reads 1"):
         import_stages(src, work, plan)
     assert not (tmp_path / "evil").exists() and not work.exists()
+    # several folders: all checked before the first copy; a work folder inside an export refused
+    exp = load_experiment(spec, "quick", 2)
+    with pytest.raises(ExportError, match="is unreadable"):
+        _import([root / "carried", src], work, plan, print, exp)
+    assert not work.exists()
+    with pytest.raises(ExportError, match="is inside the export"):
+        import_stages(root / "carried", root / "carried" / "w", plan)
+    assert not (root / "carried" / "w").exists()
 
 
 def test_imports_copy_only_this_plans_stages_once_and_say_what_matched(exported, tmp_path):
@@ -216,6 +231,10 @@ def test_export_refuses_what_it_would_lose_and_the_cli_checks_its_flags(exported
     with pytest.raises(ExportError, match="holds 1 evaluation"):
         export_experiment(spec, carried, "quick", 2, less)
     export_experiment(spec, carried, "quick", 2, root / "a")  # the same again: replaced
+    (carried / INDEX_FILE).write_text("{")  # e.g. a merge conflict: it may hold anything
+    with pytest.raises(ExportError, match="index cannot be read"):
+        export_experiment(spec, carried, "quick", 2, less)
+    assert len(list(carried.glob("evaluate/*"))) == 2
     assert main(["reproduce", spec, "--work", str(root / "a"), "--runs", "2",
                  "--export-stages", str(tmp_path / "cli")]) == 0  # fmt: skip
     out = capsys.readouterr().out
