@@ -4,7 +4,8 @@ Two checks: the manifest (every file's SHA-256, recorded in ``.lhf_output.json``
 that wrote the folder ended: missing, changed and added files) and the kind's own deepest check
 (a dataset: every data file hashed against its fingerprint and every task's returns recomputed from
 its rewards; a selection: its source dataset unchanged; a checkpoint: it loads and its dataset is
-unchanged; exported stages: each evaluation's files against the export's checksums).  Folders written before manifests get the second check only, and a note.
+unchanged; exported stages: each evaluation's files against the export's checksums).  Folders
+written before manifests get the second check only, and a note.
 """
 
 from __future__ import annotations

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -251,15 +250,12 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
 
 
 def _imported_lines(imported: list[dict]) -> list[str]:
-    """Which evaluations were made on another machine (``--import-stages``)."""
+    """Which evaluations were made on another machine (``--import-stages``), one line per export."""
     if not imported:
         return []
-    origins = sorted(
-        {(i.get("from"), i.get("created"), json.dumps(i.get("versions"))) for i in imported}
-    )
+    exports = {(i.get("from"), i.get("created")): i.get("versions") or {} for i in imported}
     lines = [f"{len(imported)} evaluation(s) were imported (`--import-stages`), made elsewhere:"]
-    for where, created, versions in origins:
-        v = json.loads(versions) or {}
-        names = ", ".join(f"{k} {x}" for k, x in v.items())
+    for (where, created), versions in sorted(exports.items(), key=lambda kv: str(kv[0])):
+        names = ", ".join(f"{k} {x}" for k, x in versions.items())
         lines.append(f"- from `{where}`, exported {created}" + (f" ({names})" if names else ""))
     return [*lines, ""]
