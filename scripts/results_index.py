@@ -1,7 +1,10 @@
 """Render ROOT/README.md (default ``results/README.md``): every table ``lhf reproduce`` wrote under
 ROOT, cell by cell, our E beside the paper's.
 
-    python scripts/results_index.py [--root results]
+    python scripts/results_index.py [--root results] [--coverage cpu]
+
+First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
+to run (``lhf_hf/reproduce/coverage.py``); then every table.
 
 Exits 1 when ROOT is missing, 2 when some table's ``results.json`` could not be read (the index is
 still written, naming them).
@@ -24,9 +27,15 @@ def main() -> int:
         default="results",
         help="the folder holding one folder per table (default: results, from the current folder)",
     )
+    p.add_argument(
+        "--coverage",
+        default="cpu",
+        help="the preset whose cells of every shipped spec are listed first, done or not; "
+        "'none': no such list (default: cpu)",
+    )
     args = p.parse_args()
     try:
-        path, bad = write_index(args.root)
+        path, bad = write_index(args.root, None if args.coverage == "none" else args.coverage)
     except FileNotFoundError as exc:
         print(exc, file=sys.stderr)
         return 1

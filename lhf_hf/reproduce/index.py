@@ -18,6 +18,8 @@ from urllib.parse import quote
 
 from lhf_hf.utils.io import write_text_atomic
 
+from .coverage import coverage as cells_of
+from .coverage import render_coverage
 from .experiment import train_settings
 from .report import _objective, _pct, command_line, default_out, verdict
 
@@ -144,9 +146,10 @@ def _kept_line(selections: list[dict]) -> list[str]:
     return ["", *out] if out else []
 
 
-def render_index(root: str | Path) -> tuple[str, list[str]]:
+def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, list[str]]:
     """The index of every ``*/results.json`` under ``root`` (one table each), as markdown, and the
-    names of the tables whose ``results.json`` could not be read."""
+    names of the tables whose ``results.json`` could not be read.  ``coverage``: a preset whose
+    cells of every shipped spec are listed first, done or not (``coverage.py``)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
@@ -166,6 +169,8 @@ def render_index(root: str | Path) -> tuple[str, list[str]]:
         "|E| against its std before that.",
         "",
     ]
+    if coverage is not None:
+        lines += render_coverage(cells_of(root, coverage), coverage)
     if not folders:
         lines.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
     bad = []
@@ -178,9 +183,9 @@ def render_index(root: str | Path) -> tuple[str, list[str]]:
     return "\n".join(lines).rstrip() + "\n", bad
 
 
-def write_index(root: str | Path) -> tuple[Path, list[str]]:
+def write_index(root: str | Path, coverage: str | None = None) -> tuple[Path, list[str]]:
     """Write ``root/README.md`` (atomically); return its path and the unreadable tables."""
-    text, bad = render_index(root)
+    text, bad = render_index(root, coverage)
     path = Path(root) / INDEX_FILE
     write_text_atomic(text, path)
     return path, bad

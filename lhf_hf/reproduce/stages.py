@@ -102,12 +102,20 @@ class StageRunner:
         return out
 
 
-def needed_stages(stages: list[Stage], work: Path, targets: list[Stage]) -> list[Stage]:
+def needed_stages(
+    stages: list[Stage],
+    work: Path,
+    targets: list[Stage],
+    done: Callable[[Stage], bool] | None = None,
+) -> list[Stage]:
     """``stages`` (in plan order) less those this call need not run: a stage not done is needed
     when it is a target (what the report reads) or some needed stage reads it.  A training whose
     evaluations are all done (imported from another machine's cache, ``portable.py``) is left out,
-    and so is the collection only it read.  Done stages stay (they are reported as cached)."""
+    and so is the collection only it read.  Done stages stay (they are reported as cached).
+    ``done``: what counts as done (default: finished under ``work``; ``coverage.py`` counts the
+    stages of a committed export)."""
     work = Path(work)
+    is_done = done or (lambda s: s.done(work))
     needed: set[str] = set()
     todo = list(targets)
     while todo:
@@ -115,9 +123,9 @@ def needed_stages(stages: list[Stage], work: Path, targets: list[Stage]) -> list
         if s.hash in needed:
             continue
         needed.add(s.hash)
-        if not s.done(work):
+        if not is_done(s):
             todo.extend(s.inputs)
-    return [s for s in stages if s.hash in needed or s.done(work)]
+    return [s for s in stages if s.hash in needed or is_done(s)]
 
 
 def stage_wall(folder: Path) -> float:

@@ -1,0 +1,130 @@
+"""Coverage: which cells of a shipped spec a results folder holds at the preset's current budget,
+and what is left of the rest (committed exports counted as done)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from lhf_hf.reproduce.coverage import coverage, differences, render_coverage
+from lhf_hf.reproduce.experiment import load_experiment
+from lhf_hf.reproduce.index import render_index
+from lhf_hf.reproduce.reproduce import plan_stages
+
+
+def _table(root: Path, folder: str, exp: dict, rows: list[dict], created: str, stage_s=3600.0):
+    (root / folder).mkdir(parents=True)
+    summary = {
+        "experiment": exp,
+        "cells": [{"env_id": "darkroom", "arm": arm, "rows": [r]} for arm, r in rows],
+        "stage_s": stage_s,
+        "created": created,
+    }
+    (root / folder / "results.json").write_text(json.dumps(summary))
+
+
+def _row(backbone: str, e: float) -> dict:
+    return {"backbone": backbone, "E": e, "E_std": 0.1, "baseline_mean": 10.0, "lhf_mean": 11.0}
+
+
+def test_differences_compare_each_backbone_s_own_training_settings():
+    exp = load_experiment("darkroom-main", "cpu")
+    now = json.loads(json.dumps(exp.to_dict()))
+    assert differences(now, exp, "ad") == [] and differences(now, exp, "dicp") == []
+    old = json.loads(json.dumps(now))
+    old["collect"]["histories"] = 50
+    old["train"]["max_steps"] = 1000  # AD's and DPT's steps; DICP keeps its own override (4,000)
+    assert differences(old, exp, "ad") == [
+        "collect.histories 50 (now 100)",
+        "train.max_steps 1000 (now 3000)",
+    ]
+    assert differences(old, exp, "dicp") == ["collect.histories 50 (now 100)"]
+    del old["train"]["by_objective"]  # DICP then trained for the shared 1,000 steps
+    assert "train.max_steps 1000 (now 4000)" in differences(old, exp, "dicp")
+
+
+def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_path):
+    exp = load_experiment("darkroom-lambda", "cpu")
+    now = exp.to_dict()
+    older = json.loads(json.dumps(now))
+    older["collect"]["histories"] = 50
+    ad = [("lam=0", _row("AD", -0.062)), ("lam=1", _row("AD", 0.017))]
+    # the current budget wins over a later table of an older one; two runs are not enough
+    _table(tmp_path, "lam-ad", now, ad, "2026-12-01T00:00:00+0000", stage_s=8748)
+    _table(tmp_path, "lam-ad-old", older, ad, "2026-12-02T00:00:00+0000")
+    _table(tmp_path, "lam-ad-2runs", {**now, "runs": 2}, ad, "2026-12-03T00:00:00+0000")
+    plan = [("lam=0", _row("DICP", 0.3)), ("lam=0", _row("DICP + plan", 0.25))]
+    _table(tmp_path, "lam-dicp-old", older, plan, "2026-12-01T00:00:00+0000")
+    before = coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]
+    (cell_ad, cell_dicp) = before["cells"]
+    assert before["outside"] == []  # the lambda sweep is a Darkroom spec
+    assert cell_ad["status"] == "done" and cell_ad["table"] == "lam-ad"
+    assert [r["arm"] for r in cell_ad["rows"]] == ["lam=0", "lam=1"] and "left" not in cell_ad
+    assert cell_dicp["status"] == "older budget" and cell_dicp["table"] == "lam-dicp-old"
+    assert cell_dicp["differences"] == ["collect.histories 50 (now 100)"]
+    assert cell_dicp["left"]["exported_runs"] == [] and cell_dicp["left"]["missing"] == []
+    assert cell_dicp["left"]["wall_s"] > 0
+
+    # run 0's DICP evaluations committed as an export: that run's trainings are not left
+    stages, evals = plan_stages(exp, tmp_path / "nowhere")
+    run0 = [
+        s
+        for (env, arm, obj), group in evals.items()
+        if obj == "dicp"
+        for s in group
+        if s.config["seed"] == 0
+    ]
+    assert len(run0) == 6  # the baseline and 5 lambdas, one evaluation each
+    (tmp_path / "stages" / "dicp-run0").mkdir(parents=True)
+    index = {"stages": [{"kind": "evaluate", "hash": s.hash} for s in run0]}
+    (tmp_path / "stages" / "dicp-run0" / "stages.json").write_text(json.dumps(index))
+    after = coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]["cells"][1]["left"]
+    assert after["exported_runs"] == [0] and after["exports"] == ["dicp-run0"]
+    trainings = [s for s in stages if s.kind == "train" and "DICP" in s.label]
+    assert len(trainings) == 3 * 6
+    # a third of the trainings (and evaluations) fewer: about a third less wall time
+    assert 0.55 < after["wall_s"] / cell_dicp["left"]["wall_s"] < 0.8
+
+    text = "\n".join(render_coverage([coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]], "cpu"))
+    assert (
+        "| darkroom-lambda | darkroom | AD | - | done | AD lam=0 -6.2, AD lam=1 +1.7 "
+        "| [lam-ad](lam-ad/report.md) (2.43 h) | - |" in text
+    )
+    assert (
+        "| darkroom-lambda | darkroom | DICP | - | older budget: collect.histories 50 (now 100) "
+        in text
+    )
+    assert (
+        "| DICP + plan lam=0 +25.0, DICP lam=0 +30.0 |" not in text
+    )  # rows keep the table's order
+    assert "DICP lam=0 +30.0, DICP + plan lam=0 +25.0" in text
+    assert "; run 0 exported in dicp-run0 |" in text
+    assert "1 of 2 cells done at the cpu preset's current budget; the other 1: ~" in text
+
+
+def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
+    main, sac = coverage(tmp_path, "cpu", ["darkroom-main", "metaworld-sac"])
+    assert [c["env"] for c in main["cells"]] == ["darkroom"] * 3
+    assert [c["status"] for c in main["cells"]] == ["not run"] * 3
+    assert [o["env"] for o in main["outside"]] == [
+        "darkroom-permuted",
+        "darkroom-large",
+        "dark-key-to-door",
+    ]
+    large = main["outside"][1]["left"]
+    assert large["missing"] == [] and large["wall_s"] > 3600  # paper-size models, context 200
+    text = "\n".join(render_coverage([main, sac], "cpu"))
+    assert "- darkroom-main: darkroom-large, ~" in text
+    # nothing of Meta-World SAC was ever measured: no number pretends otherwise
+    assert (
+        "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: stages never "
+        "measured (collect on metaworld-push, evaluate on metaworld-push, train on metaworld-push) |"
+        in text
+    )
+
+
+def test_the_index_lists_the_coverage_first_when_asked(tmp_path):
+    assert "## Coverage" not in render_index(tmp_path)[0]
+    text = render_index(tmp_path, coverage="quick")[0]
+    assert text.index("## Coverage at the quick preset") < text.index("No tables yet")
+    assert "| darkroom-main | darkroom | AD | +25.1 | not run |" in text
