@@ -1,7 +1,7 @@
 """Render ROOT/README.md (default ``results/README.md``): every table ``lhf reproduce`` wrote under
 ROOT, cell by cell, our E beside the paper's.
 
-    python scripts/results_index.py [--root results] [--coverage cpu]
+    python scripts/results_index.py [--root results] [--coverage {quick,cpu,paper,none}]
 
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
 to run (``lhf_hf/reproduce/coverage.py``); then every table.
@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lhf_hf.reproduce.experiment import PRESETS
 from lhf_hf.reproduce.index import write_index
 
 
@@ -30,8 +31,9 @@ def main() -> int:
     p.add_argument(
         "--coverage",
         default="cpu",
-        help="the preset whose cells of every shipped spec are listed first, done or not; "
-        "'none': no such list (default: cpu)",
+        choices=[*PRESETS, "none"],
+        help="the preset whose cells of every shipped spec are listed first, done or not, with "
+        "what is left to run; 'none': no such list (default: cpu)",
     )
     args = p.parse_args()
     try:

@@ -1,29 +1,33 @@
 """Coverage: every cell of every shipped spec at one preset, measured or not, and what is left.
 
 ``results/README.md`` lists the tables that exist; this says which cells of the paper's tables they
-cover at a preset's *current* budget, and for the rest why not and what it would take.  Per shipped
-spec that has the preset, per env of the preset's grid and per backbone, a cell is:
+cover at a preset's *current* settings, and for the rest why not and what it would take.  Per
+shipped spec that has the preset, per env of the preset's grid and per backbone, a cell is:
 
 - **done**: a table under the root (its ``results.json``) holds it from at least the preset's
-  number of runs, and its recorded settings (collect, filter, train, evaluate) equal the spec's
-  now.  A preset's budget changes (the cpu presets went from 50 to 100 histories per goal), so a
-  table made by the same command line before that is
-- **older budget**: named with the settings that differ; or the cell is
+  number of runs, made with the settings the cell's stages run with now (``cell_settings``: the
+  collection, the filter arms, the backbone's own training and its evaluations, defaults filled
+  in, rebuilt from the recorded spec settings).  A preset's budget changes (the cpu presets went
+  from 50 to 100 histories per goal), so a table made by the same command line before that is
+- **other settings** (named) or **fewer runs**: the newest table that holds the cell; or the cell is
 - **not run**.
 
 Cells not done get the estimated wall time of what is left of them (``estimate.py``, ``--jobs 2``,
 the shipped reference rates of the first machine in ``rates.json``, so the page does not change
 with the machine that renders it).  "Left" counts a committed export's evaluations
 (``ROOT/stages/*``, ``portable.py``) as done, with the trainings only they needed, the way
-``--import-stages`` would.  Each cell is estimated alone: a stage two cells share (a collection, the
-sweeps' common baseline) is counted in each.
+``--import-stages`` would (which may also use the imported evaluations' own times as rates: the
+two can differ by minutes).  Each cell is estimated alone: a stage two cells share (a collection,
+the sweeps' common baseline) is counted in each.  A cell with a kind of stage never measured is
+``unknown``, not a lower bound.
 
 The envs of the spec's grid that the preset leaves out (the cpu presets keep Darkroom: the other
-gridworlds need context 200, Meta-World a GPU) get one line each, with the estimate of all their
-backbones from scratch: the stated reason and the cost of the cells that did not fit.
+gridworlds need context 200; Meta-World's specs keep one or two envs) get one line each, with the
+estimate of all their backbones from scratch: the stated reason and the cost of what did not fit.
 
-Config equality is checked on the recorded settings, not on the stage hashes: a table made before
-a default changed inside a config class still counts as the current budget.
+Settings are compared as recorded, not as stage hashes: a table made before a default changed
+inside a config class still counts as the current settings.  A malformed ``results.json`` or
+``stages.json`` is named and left out, never fatal.
 """
 
 from __future__ import annotations
@@ -37,19 +41,19 @@ from urllib.parse import quote
 import yaml
 
 from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
-from .experiment import Experiment, experiment_names, load_experiment, spec_path, train_settings
+from .experiment import PRESETS, Experiment, experiment_names, load_experiment, spec_path
 from .report import _objective, _pct
 from .reproduce import plan_stages
 from .stages import needed_stages
 
-#: The recorded settings a table must share with the spec to count as its current budget.
+#: The recorded settings a table's experiment is rebuilt from (``Experiment``'s own validation).
 SETTINGS = ("collect", "filter", "train", "evaluate")
 #: ``--jobs`` the estimates assume (2 cores: two single-thread stages at once).
 JOBS = 2
 
 
 def _flat(d, prefix: str = "") -> dict[str, object]:
-    """``{"collect.histories": 100, "train.by_objective.dicp.max_steps": 4000, ...}``."""
+    """``{"collect.histories": 100, "filter.lhf.lam": 1.0, ...}``."""
     if not isinstance(d, dict):
         return {prefix: d}
     out: dict[str, object] = {}
@@ -58,19 +62,61 @@ def _flat(d, prefix: str = "") -> dict[str, object]:
     return out
 
 
-def differences(recorded: dict, current: Experiment, objective: str) -> list[str]:
-    """The settings one backbone's cells of a table were made with (its recorded experiment) that
-    differ from the spec's now, as ``"collect.histories 50 (now 100)"``; empty when it is the
-    current budget.  Training compares the backbone's own settings (``train_settings``: the shared
-    ones and its ``by_objective`` overrides), so a change of AD's steps does not date a DICP cell."""
-    now = current.to_dict()
+def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object]:
+    """Every setting the stages of one cell run with, defaults included, as flat keys: the
+    collection, each filter arm, the backbone's training (``by_objective`` applied) and its
+    evaluations (plan-only settings only where DICP plans).  What the stage hashes cover, less
+    the upstream hashes and the run's seed and paths, so a default written out is no difference
+    and a change of AD's steps or of DICP's planner does not date another backbone's cell."""
+    evaluate = {
+        "plan" if plan else "policy": exp.eval_config(0, model="-", out="-", plan=plan).to_dict()
+        for plan in (exp.dicp_plan_modes() if objective == "dicp" else (False,))
+    }
+    for e in evaluate.values():
+        e.pop("seed", None)
+    train = exp.train_config(objective, 0, dataset="-", selection=None, out="-").to_dict()
+    collect = exp.collect_config(env, 0).to_dict()
+    for d in (train, collect):
+        d.pop("seed", None)
+    collect.pop("split_seed", None)
+    if "tasks_per_chunk" not in exp.collect:  # derived from the histories (CollectConfig): not
+        collect.pop("tasks_per_chunk", None)  # a second difference when only they changed
+    filters = {}
+    for arm, f in exp.filter_arms(0):
+        filters[arm] = f.to_dict()
+        filters[arm].pop("seed", None)
+    return _flat(
+        {"collect": {**collect, "half": exp.half}, "filter": filters, "train": train,
+         "evaluate": evaluate}
+    )  # fmt: skip
 
-    def settings(exp: dict) -> dict:
-        out = {k: exp.get(k) or {} for k in SETTINGS}
-        out["train"] = train_settings(out["train"], objective)
-        return _flat(out)
 
-    old, new = settings(recorded), settings(now)
+def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
+    """The experiment a table's ``results.json`` recorded, rebuilt on the current spec (its
+    settings replaced by the recorded ones, validated as a spec is): ``ValueError`` when they are
+    malformed or no longer valid."""
+    rec = summary.get("experiment")
+    if not isinstance(rec, dict):
+        raise ValueError("no recorded experiment")
+    fields = {}
+    for key in SETTINGS:
+        value = rec.get(key) or {}
+        if not isinstance(value, dict):
+            raise ValueError(f"experiment.{key} is a {type(value).__name__}, not a mapping")
+        fields[key] = value
+    runs = rec.get("runs")
+    if not isinstance(runs, int) or isinstance(runs, bool):
+        raise ValueError(f"experiment.runs is {runs!r}, not a number of runs")
+    try:
+        return dataclasses.replace(current, runs=runs, **fields)
+    except (TypeError, KeyError, AttributeError) as exc:  # a malformed setting's own error
+        raise ValueError(f"its settings cannot be rebuilt: {exc}") from None
+
+
+def differences(recorded: Experiment, current: Experiment, env: str, objective: str) -> list[str]:
+    """The settings one cell was made with (``recorded``) that differ from the spec's now, as
+    ``"collect.histories 50 (now 100)"``; empty when it is the current budget."""
+    old, new = cell_settings(recorded, env, objective), cell_settings(current, env, objective)
     return [
         f"{k} {old.get(k, 'unset')} (now {new.get(k, 'unset')})"
         for k in sorted(set(old) | set(new))
@@ -78,29 +124,65 @@ def differences(recorded: dict, current: Experiment, objective: str) -> list[str
     ]
 
 
-def _tables(root: Path) -> list[tuple[Path, dict]]:
+def _num(x) -> float | None:
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
+    """A table's rows of one env and backbone, each with its arm (one per sweep value);
+    ``ValueError`` when the cells are malformed."""
+    cells = summary.get("cells")
+    if not isinstance(cells, list):
+        raise ValueError("cells is not a list")
     out = []
+    for cell in cells:
+        if not isinstance(cell, dict) or not isinstance(cell.get("rows"), list):
+            raise ValueError(f"a cell is malformed: {str(cell)[:60]}")
+        if cell.get("env_id") != env:
+            continue
+        for row in cell["rows"]:
+            if not isinstance(row, dict) or not isinstance(row.get("backbone"), str):
+                raise ValueError(f"a row is malformed: {str(row)[:60]}")
+            if _objective(row["backbone"]) == objective:
+                out.append({**row, "arm": str(cell.get("arm", "lhf")), "E": _num(row.get("E"))})
+    return out
+
+
+def _tables(root: Path) -> tuple[list[tuple[Path, dict]], list[str]]:
+    """The tables under ``root`` and the names of those whose ``results.json`` cannot be read."""
+    out, bad = [], []
     for path in sorted(root.glob("*/results.json")):
         try:
             summary = json.loads(path.read_text())
-            summary["experiment"]["name"]  # noqa: B018 (a table without it is not ours)
+            if not isinstance(summary["experiment"]["name"], str):
+                raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
-            continue  # the index names unreadable tables itself
+            bad.append(path.parent.name)
+            continue
         out.append((path.parent, summary))
-    return out
+    return out, bad
 
 
-def exported_hashes(root: Path) -> dict[str, str]:
+def exported_hashes(root: Path) -> tuple[dict[str, str], list[str]]:
     """``{stage hash: export folder name}`` of every evaluation in ``ROOT/stages/*/stages.json``
-    (checked by ``lhf verify``/``--import-stages``; here only read)."""
-    out = {}
+    (``lhf verify``/``--import-stages`` check them; here they are only read), and the exports
+    whose index cannot be read, with the reason."""
+    out, bad = {}, []
     for index in sorted((root / "stages").glob("*/stages.json")):
         try:
             stages = json.loads(index.read_text())["stages"]
-            out.update({s["hash"]: index.parent.name for s in stages if s["kind"] == "evaluate"})
-        except (OSError, ValueError, KeyError, TypeError):
+            found = {s["hash"]: index.parent.name for s in stages if s["kind"] == "evaluate"}
+            if not all(isinstance(h, str) for h in found):
+                raise TypeError("a hash is not a string")
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            bad.append(f"{index.parent.name} ({type(exc).__name__}: {exc})")
             continue
-    return out
+        out.update(found)
+    return out, bad
 
 
 def _reference() -> dict:
@@ -142,78 +224,87 @@ def _spec_envs(name: str) -> list[str]:
     return list(spec.get("envs") or [])
 
 
-def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
-    """A table's rows of one env and backbone, each with its arm (one per sweep value)."""
-    return [
-        {**row, "arm": cell["arm"]}
-        for cell in summary.get("cells") or []
-        if cell.get("env_id") == env
-        for row in cell.get("rows") or []
-        if _objective(row.get("backbone", "?")) == objective
-    ]
-
-
-def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = None) -> list[dict]:
-    """One entry per shipped spec with ``preset`` (or ``names``): its cells (env x backbone, the
-    preset's envs) with their status, and the envs of its grid outside the preset."""
+def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = None) -> dict:
+    """Every shipped spec with ``preset`` (or ``names``): its cells (the preset's envs x
+    backbones) with their status, and the envs of its grid the preset leaves out; and the tables
+    and exports under ``root`` that could not be read (``ValueError`` for an unknown preset)."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}: one of {', '.join(PRESETS)}")
     root = Path(root)
-    tables = _tables(root)
-    exported = exported_hashes(root)
+    tables, malformed = _tables(root)
+    exported, unread = exported_hashes(root)
     reference = _reference()
-    out = []
+    specs = []
     for name in names or experiment_names():
         try:
             exp = load_experiment(name, preset)
         except ValueError:
-            continue  # no such preset
-        mine = [
-            (folder, s)
-            for folder, s in tables
-            if s["experiment"]["name"] == name and s["experiment"].get("preset") == preset
-        ]
+            continue  # a spec without this preset
+        mine = []
+        for folder, s in tables:
+            if s["experiment"]["name"] != name or s["experiment"].get("preset") != preset:
+                continue
+            try:
+                mine.append((folder, s, recorded_experiment(s, exp)))
+            except ValueError as exc:
+                malformed.append(f"{folder.name} ({exc})")
         cells = []
         for env in exp.envs:
             for obj in exp.objectives:
-                cell = {"env": env, "objective": obj, "paper": (exp.paper.get(env) or {}).get(obj)}
-                found = []  # (current?, created, folder, summary, differences)
-                for folder, s in mine:
-                    rows = cell_results(s, env, obj)
-                    if not rows or int(s["experiment"].get("runs") or 0) < exp.runs:
+                paper = _num((exp.paper.get(env) or {}).get(obj))
+                cell = {"env": env, "objective": obj, "paper": paper, "status": "not run"}
+                found = []
+                for folder, s, rec in mine:
+                    try:
+                        rows = cell_results(s, env, obj)
+                    except ValueError as exc:
+                        malformed.append(f"{folder.name} ({exc})")
                         continue
-                    diff = differences(s["experiment"], exp, obj)
-                    found.append((not diff, str(s.get("created", "")), folder, s, rows, diff))
+                    if rows:
+                        diff = differences(rec, exp, env, obj)
+                        rank = (not diff and rec.runs >= exp.runs, not diff, str(s.get("created")))
+                        found.append((rank, folder, s, rec, rows, diff))
                 if found:
-                    current, _, folder, s, rows, diff = max(found, key=lambda f: f[:2])
+                    (current, same, _), folder, s, rec, rows, diff = max(found, key=lambda f: f[0])
+                    stage_s = _num(s.get("stage_s"))
                     cell.update(
-                        status="done" if current else "older budget",
+                        status="done" if current else "fewer runs" if same else "other settings",
                         table=folder.name,
-                        stage_s=s.get("stage_s"),
+                        report=(folder / "report.md").is_file(),
+                        stage_s=stage_s if stage_s and stage_s > 0 else None,
+                        runs=rec.runs,
                         rows=rows,
                         differences=diff,
                     )
-                else:
-                    cell.update(status="not run")
                 if cell["status"] != "done":
                     one = dataclasses.replace(exp, envs=(env,), objectives=(obj,), narrowed=True)
                     cell["left"] = _left(one, root, exported, reference)
                 cells.append(cell)
-        outside = []
-        for env in _spec_envs(name):
-            if env in exp.envs:
-                continue
-            one = dataclasses.replace(exp, envs=(env,))
-            outside.append({"env": env, "left": _left(one, root, exported, reference)})
-        out.append({"experiment": exp, "cells": cells, "outside": outside})
-    return out
+        outside = [
+            {
+                "env": env,
+                "left": _left(dataclasses.replace(exp, envs=(env,)), root, exported, reference),
+            }
+            for env in _spec_envs(name)
+            if env not in exp.envs
+        ]
+        specs.append({"experiment": exp, "cells": cells, "outside": outside})
+    return {
+        "preset": preset,
+        "specs": specs,
+        "malformed": sorted(set(malformed)),
+        "unread_exports": unread,
+    }
 
 
 def _estimate(left: dict) -> str:
-    text = f"~{duration(left['wall_s'])}"
     if left["missing"]:  # "collect|metaworld-push|sb3|sac" -> "collect on metaworld-push"
         kinds = sorted({" on ".join(k.split("|")[:2]) for k in left["missing"]})
-        never = f"stages never measured ({', '.join(kinds)})"
-        # what was measured is only a start-up or a filter: the cell's cost is unknown
-        text = f"unknown: {never}" if left["wall_s"] < 60 else f">= {text} + {never}"
+        # a lower bound from the measured stages alone would mislead (a filter's seconds beside
+        # a collection never timed): the cell's cost is unknown
+        text = f"unknown: never measured ({', '.join(kinds)})"
+    else:
+        text = f"~{duration(left['wall_s'])}"
     if left["exported_runs"]:
         runs = ", ".join(map(str, left["exported_runs"]))
         text += f"; run {runs} exported in {', '.join(left['exports'])}"
@@ -223,70 +314,88 @@ def _estimate(left: dict) -> str:
 def _ours(rows: list[dict]) -> str:
     parts = []
     for r in rows:
-        e = r.get("E")
-        e = None if e is None or not math.isfinite(float(e)) else float(e)
-        label = r["backbone"] + ("" if r["arm"] == "lhf" else f" {r['arm']}")
-        parts.append(f"{label} {_pct(e)}")
+        arm = "" if r["arm"] == "lhf" else f" {r['arm']}"
+        parts.append(f"{r['backbone']}{arm} {_pct(r['E'])}")
     return ", ".join(parts)
 
 
-def render_coverage(entries: list[dict], preset: str) -> list[str]:
+def render_coverage(cov: dict) -> list[str]:
     """The coverage section of ``results/README.md`` (markdown lines)."""
-    ref = _reference().get("cpu", "?")
+    preset = cov["preset"]
     lines = [
         f"## Coverage at the {preset} preset",
         "",
-        f"Every cell of every shipped spec at `--preset {preset}` (`lhf_hf/reproduce/coverage.py`): "
-        "**done** when a table here holds it from the preset's runs at the spec's current "
-        "settings; **older budget** when the tables that hold it were made at other settings "
-        "(which are named). Left to run: the estimated wall time at `--jobs 2` from the reference "
-        f"rates ({ref}; an AVX2 AMD EPYC takes up to ~2x), less the evaluations committed under "
-        "`stages/` (`--import-stages`); each cell alone, so a stage shared by two cells is counted "
-        "in each.",
+        f"Every cell of every shipped spec at `--preset {preset}` (`lhf_hf/reproduce/coverage.py`). "
+        "**done**: a table here holds it from the preset's runs, made with the settings its stages "
+        "run with now (defaults included; a default changed inside the code is not seen); "
+        "**other settings** / **fewer runs**: the newest table that holds it differs so (the "
+        "settings are named); **not run**: no table here holds it. Left to run: the estimated wall "
+        "time at `--jobs 2` from the reference rates "
+        f"({_reference().get('cpu', '?')}; an AVX2 AMD EPYC takes up to ~2x), less the evaluations "
+        "committed under `stages/` (`--import-stages`); each cell alone, so a stage two cells share "
+        "is counted in each; `unknown` where a kind of stage was never measured.",
         "",
         "| spec | env | backbone | paper E (%) | status | ours: E (%) | table (stage time) | left to run |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    done = total = 0
+    done = total = unknown = 0
     left_s = 0.0
-    for entry in entries:
-        exp = entry["experiment"]
-        for c in entry["cells"]:
+    for spec in cov["specs"]:
+        exp = spec["experiment"]
+        for c in spec["cells"]:
             total += 1
-            paper = "-" if c["paper"] is None else f"{float(c['paper']):+.1f}"
+            paper = "-" if c["paper"] is None else f"{c['paper']:+.1f}"
             table = ours = "-"
             if "table" in c:
-                hours = c.get("stage_s")
-                table = f"[{c['table']}]({quote(c['table'])}/report.md)" + (
-                    f" ({float(hours) / 3600:.2f} h)" if hours else ""
+                table = (
+                    f"[{c['table']}]({quote(c['table'])}/report.md)" if c["report"] else c["table"]
                 )
+                table += f" ({c['stage_s'] / 3600:.2f} h)" if c["stage_s"] else ""
                 ours = _ours(c["rows"])
             status = c["status"]
-            if status == "older budget":
+            if status == "fewer runs":
+                status += f" ({c['runs']} of {exp.runs})"
+            elif status == "other settings":
                 status += ": " + "; ".join(c["differences"])
+            left = "-"
             if c["status"] == "done":
                 done += 1
-                left = "-"
             else:
                 left = _estimate(c["left"])
-                left_s += c["left"]["wall_s"]
+                if c["left"]["missing"]:
+                    unknown += 1
+                else:
+                    left_s += c["left"]["wall_s"]
             lines.append(
                 f"| {exp.name} | {c['env']} | {c['objective'].upper()} | {paper} | {status} "
                 f"| {ours} | {table} | {left} |"
             )
-    lines += [
-        "",
-        f"{done} of {total} cells done at the {preset} preset's current budget; the other "
-        f"{total - done}: ~{duration(left_s)} wall at `--jobs 2`, each cell alone.",
-        "",
-    ]
-    outside = [(e["experiment"], o) for e in entries for o in e["outside"]]
+    rest = total - done
+    summary = f"{done} of {total} cells done at the {preset} preset's current settings"
+    if rest > unknown:
+        summary += f"; the other {rest}" if not unknown else f"; {rest - unknown} of the other {rest}"
+        summary += f": ~{duration(left_s)} wall at `--jobs 2`, each cell alone"
+    if unknown:
+        summary += f"; {unknown} of unknown cost"
+    lines += ["", summary + ".", ""]
+    outside = [(s["experiment"], o) for s in cov["specs"] for o in s["outside"]]
     if outside:
         lines += [
-            f"Envs of the specs' grids that the {preset} preset leaves out (all their backbones, "
-            "from scratch, `--jobs 2`; each spec's budget says why):",
+            f"Envs of the specs' grids that the {preset} preset leaves out (its `budget` in the "
+            "spec says why; all their backbones, from scratch, at `--jobs 2`; a spec of its own "
+            "with `envs: [ENV]` gives the same from `lhf reproduce SPEC.yaml --estimate`):",
             "",
         ]
         lines += [f"- {exp.name}: {o['env']}, {_estimate(o['left'])}" for exp, o in outside]
         lines.append("")
+    if cov["malformed"]:
+        lines += [
+            f"Tables left out (their `results.json` is malformed): {', '.join(cov['malformed'])}.",
+            "",
+        ]
+    if cov["unread_exports"]:
+        lines += [
+            f"Exports not counted (their `stages.json` cannot be read): {', '.join(cov['unread_exports'])}.",
+            "",
+        ]
     return lines

@@ -170,7 +170,7 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "",
     ]
     if coverage is not None:
-        lines += render_coverage(cells_of(root, coverage), coverage)
+        lines += render_coverage(cells_of(root, coverage))
     if not folders:
         lines.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
     bad = []

@@ -6,7 +6,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from lhf_hf.reproduce.coverage import coverage, differences, render_coverage
+import pytest
+
+from lhf_hf.configs import EvalConfig
+from lhf_hf.reproduce.coverage import coverage, differences, recorded_experiment, render_coverage
 from lhf_hf.reproduce.experiment import load_experiment
 from lhf_hf.reproduce.index import render_index
 from lhf_hf.reproduce.reproduce import plan_stages
@@ -21,26 +24,34 @@ def _table(root: Path, folder: str, exp: dict, rows: list[dict], created: str, s
         "created": created,
     }
     (root / folder / "results.json").write_text(json.dumps(summary))
+    (root / folder / "report.md").write_text("# report")
 
 
 def _row(backbone: str, e: float) -> dict:
     return {"backbone": backbone, "E": e, "E_std": 0.1, "baseline_mean": 10.0, "lhf_mean": 11.0}
 
 
-def test_differences_compare_each_backbone_s_own_training_settings():
+def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     exp = load_experiment("darkroom-main", "cpu")
     now = json.loads(json.dumps(exp.to_dict()))
-    assert differences(now, exp, "ad") == [] and differences(now, exp, "dicp") == []
+
+    def diff(rec: dict, obj: str) -> list[str]:
+        return differences(recorded_experiment({"experiment": rec}, exp), exp, "darkroom", obj)
+
+    assert diff(now, "ad") == [] and diff(now, "dicp") == []
     old = json.loads(json.dumps(now))
     old["collect"]["histories"] = 50
     old["train"]["max_steps"] = 1000  # AD's and DPT's steps; DICP keeps its own override (4,000)
-    assert differences(old, exp, "ad") == [
-        "collect.histories 50 (now 100)",
-        "train.max_steps 1000 (now 3000)",
-    ]
-    assert differences(old, exp, "dicp") == ["collect.histories 50 (now 100)"]
+    assert diff(old, "ad") == ["collect.histories 50 (now 100)", "train.max_steps 1000 (now 3000)"]
+    assert diff(old, "dicp") == ["collect.histories 50 (now 100)"]
     del old["train"]["by_objective"]  # DICP then trained for the shared 1,000 steps
-    assert "train.max_steps 1000 (now 4000)" in differences(old, exp, "dicp")
+    assert "train.max_steps 1000 (now 4000)" in diff(old, "dicp")
+    # the planner's settings date DICP's cells only; a default written out is no difference
+    gate = json.loads(json.dumps(now))
+    gate["evaluate"]["plan_gate"] = "always"
+    gate["evaluate"]["episodes"] = EvalConfig(model="-", out="-").episodes
+    assert diff(gate, "ad") == [] and diff(gate, "dpt") == []
+    assert diff(gate, "dicp") == ["evaluate.plan.plan_gate always (now reward_seen)"]
 
 
 def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_path):
@@ -55,12 +66,12 @@ def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_
     _table(tmp_path, "lam-ad-2runs", {**now, "runs": 2}, ad, "2026-12-03T00:00:00+0000")
     plan = [("lam=0", _row("DICP", 0.3)), ("lam=0", _row("DICP + plan", 0.25))]
     _table(tmp_path, "lam-dicp-old", older, plan, "2026-12-01T00:00:00+0000")
-    before = coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]
+    before = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]
     (cell_ad, cell_dicp) = before["cells"]
     assert before["outside"] == []  # the lambda sweep is a Darkroom spec
     assert cell_ad["status"] == "done" and cell_ad["table"] == "lam-ad"
     assert [r["arm"] for r in cell_ad["rows"]] == ["lam=0", "lam=1"] and "left" not in cell_ad
-    assert cell_dicp["status"] == "older budget" and cell_dicp["table"] == "lam-dicp-old"
+    assert cell_dicp["status"] == "other settings" and cell_dicp["table"] == "lam-dicp-old"
     assert cell_dicp["differences"] == ["collect.histories 50 (now 100)"]
     assert cell_dicp["left"]["exported_runs"] == [] and cell_dicp["left"]["missing"] == []
     assert cell_dicp["left"]["wall_s"] > 0
@@ -78,20 +89,21 @@ def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_
     (tmp_path / "stages" / "dicp-run0").mkdir(parents=True)
     index = {"stages": [{"kind": "evaluate", "hash": s.hash} for s in run0]}
     (tmp_path / "stages" / "dicp-run0" / "stages.json").write_text(json.dumps(index))
-    after = coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]["cells"][1]["left"]
+    cov = coverage(tmp_path, "cpu", ["darkroom-lambda"])
+    after = cov["specs"][0]["cells"][1]["left"]
     assert after["exported_runs"] == [0] and after["exports"] == ["dicp-run0"]
     trainings = [s for s in stages if s.kind == "train" and "DICP" in s.label]
     assert len(trainings) == 3 * 6
     # a third of the trainings (and evaluations) fewer: about a third less wall time
     assert 0.55 < after["wall_s"] / cell_dicp["left"]["wall_s"] < 0.8
 
-    text = "\n".join(render_coverage([coverage(tmp_path, "cpu", ["darkroom-lambda"])[0]], "cpu"))
+    text = "\n".join(render_coverage(cov))
     assert (
         "| darkroom-lambda | darkroom | AD | - | done | AD lam=0 -6.2, AD lam=1 +1.7 "
         "| [lam-ad](lam-ad/report.md) (2.43 h) | - |" in text
     )
     assert (
-        "| darkroom-lambda | darkroom | DICP | - | older budget: collect.histories 50 (now 100) "
+        "| darkroom-lambda | darkroom | DICP | - | other settings: collect.histories 50 (now 100) "
         in text
     )
     assert (
@@ -99,11 +111,12 @@ def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_
     )  # rows keep the table's order
     assert "DICP lam=0 +30.0, DICP + plan lam=0 +25.0" in text
     assert "; run 0 exported in dicp-run0 |" in text
-    assert "1 of 2 cells done at the cpu preset's current budget; the other 1: ~" in text
+    assert "1 of 2 cells done at the cpu preset's current settings; the other 1: ~" in text
 
 
 def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
-    main, sac = coverage(tmp_path, "cpu", ["darkroom-main", "metaworld-sac"])
+    cov = coverage(tmp_path, "cpu", ["darkroom-main", "metaworld-sac"])
+    main, sac = cov["specs"]
     assert [c["env"] for c in main["cells"]] == ["darkroom"] * 3
     assert [c["status"] for c in main["cells"]] == ["not run"] * 3
     assert [o["env"] for o in main["outside"]] == [
@@ -113,11 +126,14 @@ def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
     ]
     large = main["outside"][1]["left"]
     assert large["missing"] == [] and large["wall_s"] > 3600  # paper-size models, context 200
-    text = "\n".join(render_coverage([main, sac], "cpu"))
+    text = "\n".join(render_coverage(cov))
     assert "- darkroom-main: darkroom-large, ~" in text
+    assert "3 of the other 7: ~" in text and "; 4 of unknown cost." in text
+    with pytest.raises(ValueError, match="unknown preset 'CPU'"):
+        coverage(tmp_path, "CPU")
     # nothing of Meta-World SAC was ever measured: no number pretends otherwise
     assert (
-        "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: stages never "
+        "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: never "
         "measured (collect on metaworld-push, evaluate on metaworld-push, train on metaworld-push) |"
         in text
     )
@@ -128,3 +144,46 @@ def test_the_index_lists_the_coverage_first_when_asked(tmp_path):
     text = render_index(tmp_path, coverage="quick")[0]
     assert text.index("## Coverage at the quick preset") < text.index("No tables yet")
     assert "| darkroom-main | darkroom | AD | +25.1 | not run |" in text
+
+
+def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_path):
+    exp = load_experiment("darkroom-lambda", "cpu")
+    now = exp.to_dict()
+    ad = [("lam=0", _row("AD", 0.1))]
+    _table(tmp_path, "one-run", {**now, "runs": 1}, ad, "2026-12-01T00:00:00+0000")
+    bad = {
+        "runs-text": ({**now, "runs": "three"}, ad),
+        "train-text": ({**now, "train": "abc"}, ad),
+        "by-objective": ({**now, "train": {**now["train"], "by_objective": {"ad": "x"}}}, ad),
+        "e-text": (now, [("lam=0", {**_row("AD", 0.1), "E": "abc"})]),
+    }
+    for name, (rec, rows) in bad.items():
+        _table(tmp_path, name, rec, rows, "2026-12-02T00:00:00+0000", stage_s=float("nan"))
+    (tmp_path / "cells-dict").mkdir()
+    (tmp_path / "cells-dict" / "results.json").write_text(
+        json.dumps({"experiment": now, "cells": {"x": 1}})
+    )
+    (tmp_path / "garbage").mkdir()
+    (tmp_path / "garbage" / "results.json").write_text("{not json")
+    (tmp_path / "stages" / "broken").mkdir(parents=True)
+    (tmp_path / "stages" / "broken" / "stages.json").write_text('{"stages": [{"hash": "x"}]}')
+    cov = coverage(tmp_path, "cpu", ["darkroom-lambda"])
+    cell = cov["specs"][0]["cells"][0]
+    # E "abc" is no number, but the table is otherwise current: it is the newest done one
+    assert (cell["status"], cell["table"], cell["rows"][0]["E"]) == ("done", "e-text", None)
+    assert cell["stage_s"] is None  # NaN stage time: not shown
+    named = " ".join(cov["malformed"])
+    for name in ("runs-text", "train-text", "by-objective", "cells-dict", "garbage"):
+        assert name in named
+    assert cov["unread_exports"] == ["broken (KeyError: 'kind')"]
+    text = "\n".join(render_coverage(cov))
+    assert "| done | AD lam=0 - | [e-text](e-text/report.md) | - |" in text
+    assert "Exports not counted (their `stages.json` cannot be read): broken (KeyError" in text
+    # without the good table, the one-run table is the newest at the current settings
+    for name in bad:  # e-text among them
+        (tmp_path / name / "results.json").unlink()
+    cell = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]["cells"][0]
+    assert (cell["status"], cell["runs"], cell["table"]) == ("fewer runs", 1, "one-run")
+    assert "| fewer runs (1 of 3) |" in "\n".join(
+        render_coverage(coverage(tmp_path, "cpu", ["darkroom-lambda"]))
+    )
