@@ -125,11 +125,10 @@ def differences(recorded: Experiment, current: Experiment, env: str, objective: 
 
 
 def _num(x) -> float | None:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
+    """A recorded number: a finite int or float (not a bool, not a string of digits), else None."""
+    if isinstance(x, bool) or not isinstance(x, int | float):
         return None
-    return x if math.isfinite(x) else None
+    return float(x) if math.isfinite(x) else None
 
 
 def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
@@ -373,7 +372,9 @@ def render_coverage(cov: dict) -> list[str]:
     rest = total - done
     summary = f"{done} of {total} cells done at the {preset} preset's current settings"
     if rest > unknown:
-        summary += f"; the other {rest}" if not unknown else f"; {rest - unknown} of the other {rest}"
+        summary += (
+            f"; the other {rest}" if not unknown else f"; {rest - unknown} of the other {rest}"
+        )
         summary += f": ~{duration(left_s)} wall at `--jobs 2`, each cell alone"
     if unknown:
         summary += f"; {unknown} of unknown cost"

@@ -155,7 +155,7 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
         "runs-text": ({**now, "runs": "three"}, ad),
         "train-text": ({**now, "train": "abc"}, ad),
         "by-objective": ({**now, "train": {**now["train"], "by_objective": {"ad": "x"}}}, ad),
-        "e-text": (now, [("lam=0", {**_row("AD", 0.1), "E": "abc"})]),
+        "e-text": (now, [("lam=0", {**_row("AD", 0.1), "E": "0.5"})]),  # a string: no number
     }
     for name, (rec, rows) in bad.items():
         _table(tmp_path, name, rec, rows, "2026-12-02T00:00:00+0000", stage_s=float("nan"))
@@ -169,7 +169,7 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
     (tmp_path / "stages" / "broken" / "stages.json").write_text('{"stages": [{"hash": "x"}]}')
     cov = coverage(tmp_path, "cpu", ["darkroom-lambda"])
     cell = cov["specs"][0]["cells"][0]
-    # E "abc" is no number, but the table is otherwise current: it is the newest done one
+    # E "0.5" is no number, but the table is otherwise current: it is the newest done one
     assert (cell["status"], cell["table"], cell["rows"][0]["E"]) == ("done", "e-text", None)
     assert cell["stage_s"] is None  # NaN stage time: not shown
     named = " ".join(cov["malformed"])
