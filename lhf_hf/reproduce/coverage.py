@@ -192,9 +192,9 @@ def _reference() -> dict:
 
 
 def _left(exp: Experiment, root: Path, exported: dict[str, str], reference: dict) -> dict:
-    """What is left of ``exp``'s plan once the committed exports count as done: the estimated wall
-    time (``None`` when some stage was never measured: then ``at_least``), and the runs whose
-    evaluations are all exported."""
+    """What is left of ``exp``'s plan once the committed exports count as done: its estimated wall
+    time at ``JOBS`` (of the measured stages only when ``missing`` names kinds never measured), the
+    runs whose evaluations are all exported, and the exports that hold any."""
     nowhere = root / ".coverage-nothing-is-cached-here"
     stages, evals = plan_stages(exp, nowhere)
     targets = [s for group in evals.values() for s in group]
