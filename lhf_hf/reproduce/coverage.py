@@ -9,7 +9,8 @@ shipped spec that has the preset, per env of the preset's grid and per backbone,
   collection, the filter arms, the backbone's own training and its evaluations, defaults filled
   in, rebuilt from the recorded spec settings).  A preset's budget changes (the cpu presets went
   from 50 to 100 histories per goal), so a table made by the same command line before that is
-- **other settings** (named) or **fewer runs**: the newest table that holds the cell; or the cell is
+- **fewer runs** or else **other settings** (named): the table that holds the cell closest to
+  done (the newest among equals); or the cell is
 - **not run**.
 
 Cells not done get the estimated wall time of what is left of them (``estimate.py``, ``--jobs 2``,
@@ -48,6 +49,18 @@ from .stages import needed_stages
 
 #: The recorded settings a table's experiment is rebuilt from (``Experiment``'s own validation).
 SETTINGS = ("collect", "filter", "train", "evaluate")
+#: Fields of a stage's config that place it (paths, the model it reads, resuming), not settings:
+#: ``cell_settings`` builds the configs with placeholders for them.
+PLACES = (
+    "dataset",
+    "selection",
+    "out",
+    "model",
+    "resume",
+    "overwrite",
+    "push_to_hub",
+    "hub_private",
+)
 #: ``--jobs`` the estimates assume (2 cores: two single-thread stages at once).
 JOBS = 2
 
@@ -72,19 +85,14 @@ def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object
         "plan" if plan else "policy": exp.eval_config(0, model="-", out="-", plan=plan).to_dict()
         for plan in (exp.dicp_plan_modes() if objective == "dicp" else (False,))
     }
-    for e in evaluate.values():
-        e.pop("seed", None)
     train = exp.train_config(objective, 0, dataset="-", selection=None, out="-").to_dict()
     collect = exp.collect_config(env, 0).to_dict()
-    for d in (train, collect):
-        d.pop("seed", None)
     collect.pop("split_seed", None)
-    if "tasks_per_chunk" not in exp.collect:  # derived from the histories (CollectConfig): not
-        collect.pop("tasks_per_chunk", None)  # a second difference when only they changed
-    filters = {}
-    for arm, f in exp.filter_arms(0):
-        filters[arm] = f.to_dict()
-        filters[arm].pop("seed", None)
+    filters = {arm: f.to_dict() for arm, f in exp.filter_arms(0)}
+    for d in (*evaluate.values(), train, collect, *filters.values()):
+        d.pop("seed", None)  # the run's
+        for k in PLACES:
+            d.pop(k, None)
     return _flat(
         {"collect": {**collect, "half": exp.half}, "filter": filters, "train": train,
          "evaluate": evaluate}
@@ -115,13 +123,32 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
 
 def differences(recorded: Experiment, current: Experiment, env: str, objective: str) -> list[str]:
     """The settings one cell was made with (``recorded``) that differ from the spec's now, as
-    ``"collect.histories 50 (now 100)"``; empty when it is the current budget."""
+    ``"collect.histories 50 (now 100)"``; empty when it is the current budget.  A filter arm or an
+    evaluation mode only one side has is one entry (``"filter.lam=2 absent (now run)"``), not one
+    per field; ``tasks_per_chunk`` counts only when a spec sets it (else it follows the histories,
+    ``CollectConfig``, and would name one change twice)."""
     old, new = cell_settings(recorded, env, objective), cell_settings(current, env, objective)
-    return [
-        f"{k} {old.get(k, 'unset')} (now {new.get(k, 'unset')})"
-        for k in sorted(set(old) | set(new))
-        if old.get(k) != new.get(k)
-    ]
+    if "tasks_per_chunk" not in recorded.collect and "tasks_per_chunk" not in current.collect:
+        old.pop("collect.tasks_per_chunk", None)
+        new.pop("collect.tasks_per_chunk", None)
+    out, said = [], set()
+    for k in sorted(set(old) | set(new)):
+        if old.get(k) == new.get(k):
+            continue
+        section, _, rest = k.partition(".")
+        if section in ("filter", "evaluate"):  # keyed by arm / mode first
+            group = f"{section}.{rest.split('.')[0]}"
+            olds = any(o.startswith(group + ".") for o in old)
+            news = any(n.startswith(group + ".") for n in new)
+            if olds != news:
+                if group not in said:
+                    said.add(group)
+                    out.append(
+                        f"{group} {'run' if olds else 'absent'} (now {'run' if news else 'absent'})"
+                    )
+                continue
+        out.append(f"{k} {old.get(k, 'unset')} (now {new.get(k, 'unset')})")
+    return out
 
 
 def _num(x) -> float | None:
@@ -146,8 +173,10 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
         for row in cell["rows"]:
             if not isinstance(row, dict) or not isinstance(row.get("backbone"), str):
                 raise ValueError(f"a row is malformed: {str(row)[:60]}")
+            if not isinstance(cell.get("arm"), str):
+                raise ValueError(f"a cell has no arm: {str(cell)[:60]}")
             if _objective(row["backbone"]) == objective:
-                out.append({**row, "arm": str(cell.get("arm", "lhf")), "E": _num(row.get("E"))})
+                out.append({**row, "arm": cell["arm"], "E": _num(row.get("E"))})
     return out
 
 
@@ -171,6 +200,8 @@ def exported_hashes(root: Path) -> tuple[dict[str, str], list[str]]:
     (``lhf verify``/``--import-stages`` check them; here they are only read), and the exports
     whose index cannot be read, with the reason."""
     out, bad = {}, []
+    folders = sorted(p for p in (root / "stages").glob("*") if p.is_dir())
+    bad += [f"{p.name} (no stages.json)" for p in folders if not (p / "stages.json").is_file()]
     for index in sorted((root / "stages").glob("*/stages.json")):
         try:
             stages = json.loads(index.read_text())["stages"]
@@ -223,14 +254,24 @@ def _spec_envs(name: str) -> list[str]:
     return list(spec.get("envs") or [])
 
 
-def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = None) -> dict:
+def coverage(
+    root: str | Path,
+    preset: str = "cpu",
+    names: list[str] | None = None,
+    unreadable: list[str] | tuple[str, ...] = (),
+) -> dict:
     """Every shipped spec with ``preset`` (or ``names``): its cells (the preset's envs x
     backbones) with their status, and the envs of its grid the preset leaves out; and the tables
-    and exports under ``root`` that could not be read (``ValueError`` for an unknown preset)."""
+    and exports under ``root`` that could not be read (``ValueError`` for an unknown preset).
+    ``unreadable``: tables the caller could not read (``index.py``), left out here too."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}: one of {', '.join(PRESETS)}")
     root = Path(root)
     tables, malformed = _tables(root)
+    malformed = {name: "unreadable" for name in malformed}
+    for name in unreadable:
+        malformed.setdefault(name, "unreadable in the index")
+    tables = [(f, s) for f, s in tables if f.name not in malformed]
     exported, unread = exported_hashes(root)
     reference = _reference()
     specs = []
@@ -246,7 +287,8 @@ def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = No
             try:
                 mine.append((folder, s, recorded_experiment(s, exp)))
             except ValueError as exc:
-                malformed.append(f"{folder.name} ({exc})")
+                malformed.setdefault(folder.name, str(exc))
+        mine = [m for m in mine if m[0].name not in malformed]
         cells = []
         for env in exp.envs:
             for obj in exp.objectives:
@@ -257,11 +299,15 @@ def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = No
                     try:
                         rows = cell_results(s, env, obj)
                     except ValueError as exc:
-                        malformed.append(f"{folder.name} ({exc})")
+                        malformed.setdefault(folder.name, str(exc))
                         continue
                     if rows:
                         diff = differences(rec, exp, env, obj)
-                        rank = (not diff and rec.runs >= exp.runs, not diff, str(s.get("created")))
+                        rank = (
+                            not diff and rec.runs >= exp.runs,
+                            not diff,
+                            str(s.get("created") or ""),
+                        )
                         found.append((rank, folder, s, rec, rows, diff))
                 if found:
                     (current, same, _), folder, s, rec, rows, diff = max(found, key=lambda f: f[0])
@@ -291,14 +337,15 @@ def coverage(root: str | Path, preset: str = "cpu", names: list[str] | None = No
     return {
         "preset": preset,
         "specs": specs,
-        "malformed": sorted(set(malformed)),
+        "malformed": [f"{name} ({why})" for name, why in sorted(malformed.items())],
+        "malformed_names": sorted(malformed),
         "unread_exports": unread,
     }
 
 
 def _estimate(left: dict) -> str:
-    if left["missing"]:  # "collect|metaworld-push|sb3|sac" -> "collect on metaworld-push"
-        kinds = sorted({" on ".join(k.split("|")[:2]) for k in left["missing"]})
+    if left["missing"]:  # the whole key: "evaluate|dark-key-to-door|dicp|paper|plan|window"
+        kinds = sorted(k.replace("|", " ") for k in left["missing"])
         # a lower bound from the measured stages alone would mislead (a filter's seconds beside
         # a collection never timed): the cell's cost is unknown
         text = f"unknown: never measured ({', '.join(kinds)})"
@@ -315,7 +362,7 @@ def _ours(rows: list[dict]) -> str:
     for r in rows:
         arm = "" if r["arm"] == "lhf" else f" {r['arm']}"
         parts.append(f"{r['backbone']}{arm} {_pct(r['E'])}")
-    return ", ".join(parts)
+    return ", ".join(parts).replace("|", "\\|")  # a pipe would end the table cell
 
 
 def render_coverage(cov: dict) -> list[str]:
@@ -326,13 +373,15 @@ def render_coverage(cov: dict) -> list[str]:
         "",
         f"Every cell of every shipped spec at `--preset {preset}` (`lhf_hf/reproduce/coverage.py`). "
         "**done**: a table here holds it from the preset's runs, made with the settings its stages "
-        "run with now (defaults included; a default changed inside the code is not seen); "
-        "**other settings** / **fewer runs**: the newest table that holds it differs so (the "
-        "settings are named); **not run**: no table here holds it. Left to run: the estimated wall "
-        "time at `--jobs 2` from the reference rates "
-        f"({_reference().get('cpu', '?')}; an AVX2 AMD EPYC takes up to ~2x), less the evaluations "
-        "committed under `stages/` (`--import-stages`); each cell alone, so a stage two cells share "
-        "is counted in each; `unknown` where a kind of stage was never measured.",
+        "run with now (defaults included; a default changed inside the code is not seen); else the "
+        "table closest to that: **fewer runs**, then **other settings** (named), the newest among "
+        "equals; **not run**: no table here holds it. Left to run: the estimated wall time of the "
+        "cell at `--jobs 2` (from scratch where it is not done, an older table's stages are not "
+        "reused) from the reference rates "
+        f"({_reference().get('cpu', '?')}; a rate it lacks from the other shipped machine, an AMD "
+        "EPYC, which takes up to ~2x), less the evaluations committed under `stages/` "
+        "(`--import-stages`); each cell alone, so a stage two cells share is counted in each; "
+        "`unknown` where a kind of stage was never measured (named).",
         "",
         "| spec | env | backbone | paper E (%) | status | ours: E (%) | table (stage time) | left to run |",
         "|---|---|---|---|---|---|---|---|",
@@ -383,7 +432,7 @@ def render_coverage(cov: dict) -> list[str]:
     if outside:
         lines += [
             f"Envs of the specs' grids that the {preset} preset leaves out (its `budget` in the "
-            "spec says why; all their backbones, from scratch, at `--jobs 2`; a spec of its own "
+            "spec says why; the preset's backbones, from scratch, at `--jobs 2`; a spec of its own "
             "with `envs: [ENV]` gives the same from `lhf reproduce SPEC.yaml --estimate`):",
             "",
         ]
@@ -391,7 +440,8 @@ def render_coverage(cov: dict) -> list[str]:
         lines.append("")
     if cov["malformed"]:
         lines += [
-            f"Tables left out (their `results.json` is malformed): {', '.join(cov['malformed'])}.",
+            f"Tables left out (their `results.json` cannot be read, or its settings or cells not "
+            f"rebuilt): {', '.join(cov['malformed'])}.",
             "",
         ]
     if cov["unread_exports"]:

@@ -27,12 +27,11 @@ INDEX_FILE = "README.md"
 
 
 def _num(x) -> float | None:
-    """A finite float, or None (missing, null, NaN, infinite)."""
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
+    """A recorded number: a finite int or float, else None (missing, null, NaN, infinite, a bool,
+    a string of digits)."""
+    if isinstance(x, bool) or not isinstance(x, int | float):
         return None
-    return x if math.isfinite(x) else None
+    return float(x) if math.isfinite(x) else None
 
 
 def _pair(x) -> tuple[float, float] | None:
@@ -148,8 +147,9 @@ def _kept_line(selections: list[dict]) -> list[str]:
 
 def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, list[str]]:
     """The index of every ``*/results.json`` under ``root`` (one table each), as markdown, and the
-    names of the tables whose ``results.json`` could not be read.  ``coverage``: a preset whose
-    cells of every shipped spec are listed first, done or not (``coverage.py``)."""
+    names of the tables whose ``results.json`` could not be read (by the index, or by the coverage
+    when its settings or cells are malformed).  ``coverage``: a preset whose cells of every shipped
+    spec are listed first, done or not (``coverage.py``)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
@@ -169,17 +169,21 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "|E| against its std before that.",
         "",
     ]
-    if coverage is not None:
-        lines += render_coverage(cells_of(root, coverage))
+    body: list[str] = []
     if not folders:
-        lines.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
+        body.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
     bad = []
     for folder in folders:
         try:
-            lines += _table(folder, json.loads((folder / "results.json").read_text()))
+            body += _table(folder, json.loads((folder / "results.json").read_text()))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-            lines += [f"## {folder.name}", "", f"`results.json` unreadable: {exc!r}", ""]
+            body += [f"## {folder.name}", "", f"`results.json` unreadable: {exc!r}", ""]
             bad.append(folder.name)
+    if coverage is not None:  # the tables this index cannot read are not counted there either
+        cov = cells_of(root, coverage, unreadable=bad)
+        lines += render_coverage(cov)
+        bad += [name for name in cov["malformed_names"] if name not in bad]
+    lines += body
     return "\n".join(lines).rstrip() + "\n", bad
 
 

@@ -52,6 +52,16 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     gate["evaluate"]["episodes"] = EvalConfig(model="-", out="-").episodes
     assert diff(gate, "ad") == [] and diff(gate, "dpt") == []
     assert diff(gate, "dicp") == ["evaluate.plan.plan_gate always (now reward_seen)"]
+    # a mode or an arm only one side has is one entry; the derived chunk size written out is none
+    once = json.loads(json.dumps(now))
+    once["evaluate"]["plan_dicp"] = True
+    once["collect"]["tasks_per_chunk"] = 500  # what 100 histories give anyway
+    assert diff(once, "dicp") == ["evaluate.policy absent (now run)"] and diff(once, "ad") == []
+    lam = load_experiment("darkroom-lambda", "cpu")
+    fewer = json.loads(json.dumps(lam.to_dict()))
+    fewer["filter"]["sweep"]["values"] = [0, 0.5, 1, 2]
+    rec = recorded_experiment({"experiment": fewer}, lam)
+    assert differences(rec, lam, "darkroom", "ad") == ["filter.lam=1000 absent (now run)"]
 
 
 def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_path):
@@ -133,9 +143,9 @@ def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
         coverage(tmp_path, "CPU")
     # nothing of Meta-World SAC was ever measured: no number pretends otherwise
     assert (
-        "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: never "
-        "measured (collect on metaworld-push, evaluate on metaworld-push, train on metaworld-push) |"
-        in text
+        "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: never measured "
+        "(collect metaworld-push sb3 sac, evaluate metaworld-push ad paper no plan window, "
+        "train metaworld-push ad paper window) |" in text
     )
 
 
@@ -176,8 +186,17 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
     for name in ("runs-text", "train-text", "by-objective", "cells-dict", "garbage"):
         assert name in named
     assert cov["unread_exports"] == ["broken (KeyError: 'kind')"]
+    (tmp_path / "stages" / "empty").mkdir()  # a folder without an index is named too
+    assert coverage(tmp_path, "cpu", ["darkroom-lambda"])["unread_exports"] == [
+        "empty (no stages.json)",
+        "broken (KeyError: 'kind')",
+    ]
     text = "\n".join(render_coverage(cov))
     assert "| done | AD lam=0 - | [e-text](e-text/report.md) | - |" in text
+    # the index and the coverage agree on what they cannot read: both name it, the script exits 2
+    _, bad_index = render_index(tmp_path, coverage="cpu")
+    for name in ("runs-text", "train-text", "by-objective", "cells-dict", "garbage"):
+        assert name in bad_index
     assert "Exports not counted (their `stages.json` cannot be read): broken (KeyError" in text
     # without the good table, the one-run table is the newest at the current settings
     for name in bad:  # e-text among them
