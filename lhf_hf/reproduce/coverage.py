@@ -344,8 +344,8 @@ def coverage(
 
 
 def _estimate(left: dict) -> str:
-    if left["missing"]:  # the whole key: "evaluate|dark-key-to-door|dicp|paper|plan|window"
-        kinds = sorted(k.replace("|", " ") for k in left["missing"])
+    if left["missing"]:  # the key less its env (the row's): "evaluate dicp paper plan window"
+        kinds = sorted(" ".join(k.split("|")[:1] + k.split("|")[2:]) for k in left["missing"])
         # a lower bound from the measured stages alone would mislead (a filter's seconds beside
         # a collection never timed): the cell's cost is unknown
         text = f"unknown: never measured ({', '.join(kinds)})"

@@ -144,8 +144,7 @@ def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
     # nothing of Meta-World SAC was ever measured: no number pretends otherwise
     assert (
         "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: never measured "
-        "(collect metaworld-push sb3 sac, evaluate metaworld-push ad paper no plan window, "
-        "train metaworld-push ad paper window) |" in text
+        "(collect sb3 sac, evaluate ad paper no plan window, train ad paper window) |" in text
     )
 
 
