@@ -151,8 +151,9 @@ def differences(recorded: Experiment, current: Experiment, env: str, objective: 
     return out
 
 
-def _num(x) -> float | None:
-    """A recorded number: a finite int or float (not a bool, not a string of digits), else None."""
+def recorded_number(x) -> float | None:
+    """A number a ``results.json`` recorded: a finite int or float, else None (missing, null, NaN,
+    infinite, a bool, a string of digits); the index reads its tables with it too."""
     if isinstance(x, bool) or not isinstance(x, int | float):
         return None
     return float(x) if math.isfinite(x) else None
@@ -176,7 +177,7 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
             if not isinstance(cell.get("arm"), str):
                 raise ValueError(f"a cell has no arm: {str(cell)[:60]}")
             if _objective(row["backbone"]) == objective:
-                out.append({**row, "arm": cell["arm"], "E": _num(row.get("E"))})
+                out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
 
 
@@ -292,7 +293,7 @@ def coverage(
         cells = []
         for env in exp.envs:
             for obj in exp.objectives:
-                paper = _num((exp.paper.get(env) or {}).get(obj))
+                paper = recorded_number((exp.paper.get(env) or {}).get(obj))
                 cell = {"env": env, "objective": obj, "paper": paper, "status": "not run"}
                 found = []
                 for folder, s, rec in mine:
@@ -311,7 +312,7 @@ def coverage(
                         found.append((rank, folder, s, rec, rows, diff))
                 if found:
                     (current, same, _), folder, s, rec, rows, diff = max(found, key=lambda f: f[0])
-                    stage_s = _num(s.get("stage_s"))
+                    stage_s = recorded_number(s.get("stage_s"))
                     cell.update(
                         status="done" if current else "fewer runs" if same else "other settings",
                         table=folder.name,

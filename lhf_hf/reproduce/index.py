@@ -19,19 +19,12 @@ from urllib.parse import quote
 from lhf_hf.utils.io import write_text_atomic
 
 from .coverage import coverage as cells_of
+from .coverage import recorded_number as _num
 from .coverage import render_coverage
 from .experiment import train_settings
 from .report import _objective, _pct, command_line, default_out, verdict
 
 INDEX_FILE = "README.md"
-
-
-def _num(x) -> float | None:
-    """A recorded number: a finite int or float, else None (missing, null, NaN, infinite, a bool,
-    a string of digits)."""
-    if isinstance(x, bool) or not isinstance(x, int | float):
-        return None
-    return float(x) if math.isfinite(x) else None
 
 
 def _pair(x) -> tuple[float, float] | None:
