@@ -44,23 +44,15 @@ import yaml
 from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
 from .experiment import PRESETS, Experiment, experiment_names, load_experiment, spec_path
 from .report import _objective, _pct
-from .reproduce import plan_stages
+from .reproduce import _TRAIN_PLACES, plan_stages
 from .stages import needed_stages
 
 #: The recorded settings a table's experiment is rebuilt from (``Experiment``'s own validation).
 SETTINGS = ("collect", "filter", "train", "evaluate")
 #: Fields of a stage's config that place it (paths, the model it reads, resuming), not settings:
-#: ``cell_settings`` builds the configs with placeholders for them.
-PLACES = (
-    "dataset",
-    "selection",
-    "out",
-    "model",
-    "resume",
-    "overwrite",
-    "push_to_hub",
-    "hub_private",
-)
+#: ``cell_settings`` builds the configs with placeholders for them (the trainings' are the ones
+#: ``plan_stages`` leaves out of a stage's hash).
+PLACES = (*_TRAIN_PLACES, "model")
 #: ``--jobs`` the estimates assume (2 cores: two single-thread stages at once).
 JOBS = 2
 
