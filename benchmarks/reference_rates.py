@@ -9,7 +9,8 @@ machine's table in ``--out``: the tables of other machines there are kept (``--e
 the one of a like machine, ``estimate.load_reference``).  The shipped
 table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind),
 ``benchmarks/calibration/planning.yaml`` and ``darkroom-half --preset quick`` (a derivation,
-lightweight models); BENCHMARKS.md names the commands.  The start-up part of each stage (imports,
+lightweight models), then ``benchmarks/calibration/metaworld.yaml`` added with ``--merge``;
+BENCHMARKS.md names the commands.  The start-up part of each stage (imports,
 loading, saving) is told apart from the part that scales (``estimate.work_seconds``), so short
 calibration stages give usable rates.
 """
@@ -28,10 +29,34 @@ from lhf_hf.reproduce.estimate import REFERENCE, measured_stages, rate_table, re
 from lhf_hf.utils.io import write_json_atomic
 
 
+def merge_rates(old: list[dict], new: list[dict]) -> list[dict]:
+    """The older table with the new stages added: a (key, threads) measured in both gets the mean
+    over all their stages (each table's rate is a mean over its stages, so the means are weighed
+    by them), one measured in only one table keeps its rate."""
+    pooled = {(r["key"], r["threads"]): dict(r) for r in old}
+    for r in new:
+        k = (r["key"], r["threads"])
+        if k not in pooled:
+            pooled[k] = dict(r)
+            continue
+        p, n = pooled[k], pooled[k]["stages"] + r["stages"]
+        for f in ("seconds_per_unit", "overhead_s"):
+            p[f] = (p[f] * p["stages"] + r[f] * r["stages"]) / n
+        p["stages"] = n
+    return [pooled[k] for k in sorted(pooled)]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("work", nargs="+", help="stage caches (lhf reproduce --work)")
     p.add_argument("--out", default=str(REFERENCE))
+    p.add_argument(
+        "--merge",
+        action="store_true",
+        help="add the given caches' stages to this machine's table in --out (a calibration of one "
+        "env added to an older table: a rate measured in both is the mean over all their "
+        "stages) instead of replacing it",
+    )
     a = p.parse_args()
     cpu = cpu_model()
     records = [r for w in a.work for r in measured_stages(w) if r.get("cpu") == cpu]
@@ -39,16 +64,21 @@ def main() -> None:
         raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
     table = rate_table(records)
     rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
+    out = Path(a.out)
+    others = reference_machines(json.loads(out.read_text())) if out.exists() else []
+    command = "python benchmarks/reference_rates.py " + " ".join(a.work)
+    old = next((m for m in others if m.get("cpu") == cpu), None)
+    if a.merge and old is not None:
+        rates = merge_rates(old["rates"], rates)
+        command = f"{old.get('command', '?')}; then {command} --merge"
     mine = {
         "cpu": cpu,
         "isa": instruction_set(),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
         "date": time.strftime("%Y-%m-%d"),
-        "command": "python benchmarks/reference_rates.py " + " ".join(a.work),
+        "command": command,
         "rates": rates,
     }
-    out = Path(a.out)
-    others = reference_machines(json.loads(out.read_text())) if out.exists() else []
     machines = [m for m in others if m.get("cpu") != cpu] + [mine]
     write_json_atomic({"machines": machines}, out)
     for r in rates:
@@ -56,7 +86,7 @@ def main() -> None:
             f"{r['key']:<50} {r['threads']} thread(s) {r['seconds_per_unit']:.3e} s/unit "
             f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stages)"
         )
-    print(f"{len(rates)} rates from {len(records)} stages -> {a.out}")
+    print(f"{len(rates)} rates ({len(table)} from {len(records)} stages now) -> {a.out}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,52 @@
+"""benchmarks/reference_rates.py --merge: a calibration added to an older table."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "reference_rates.py"
+_spec = importlib.util.spec_from_file_location("reference_rates", SCRIPT)
+_module = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_module)
+merge_rates = _module.merge_rates
+
+
+def _rate(key, threads, spu, overhead, stages):
+    return {
+        "key": key,
+        "threads": threads,
+        "seconds_per_unit": spu,
+        "overhead_s": overhead,
+        "stages": stages,
+    }
+
+
+def test_merge_pools_shared_keys_by_stage_count_and_keeps_the_rest():
+    old = [
+        _rate("filter", 2, 1.0e-6, 0.0, 5),
+        _rate("train|darkroom|ad|paper|window", 1, 4e-5, 0.7, 2),
+    ]
+    new = [
+        _rate("filter", 2, 4.0e-6, 0.6, 1),
+        _rate("train|metaworld-reach-wall|ad|paper|window", 1, 3e-4, 1.0, 2),
+    ]
+    got = {(r["key"], r["threads"]): r for r in merge_rates(old, new)}
+    assert sorted(got) == [
+        ("filter", 2),
+        ("train|darkroom|ad|paper|window", 1),
+        ("train|metaworld-reach-wall|ad|paper|window", 1),
+    ]
+    # (5 x 1e-6 + 1 x 4e-6) / 6 = 1.5e-6; (5 x 0 + 1 x 0.6) / 6 = 0.1
+    assert got["filter", 2]["seconds_per_unit"] == pytest.approx(1.5e-6)
+    assert got["filter", 2]["overhead_s"] == pytest.approx(0.1)
+    assert got["filter", 2]["stages"] == 6
+    assert got["train|darkroom|ad|paper|window", 1] == old[1]
+    assert got["train|metaworld-reach-wall|ad|paper|window", 1] == new[1]
+    assert old[0]["stages"] == 5  # the inputs are not changed
+
+
+def test_merge_keeps_thread_counts_apart():
+    old = [_rate("evaluate|darkroom|ad|paper|no plan|window", 1, 3e-4, 0.4, 2)]
+    new = [_rate("evaluate|darkroom|ad|paper|no plan|window", 2, 2e-4, 0.4, 2)]
+    assert [r["threads"] for r in merge_rates(old, new)] == [1, 2]
