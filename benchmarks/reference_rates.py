@@ -79,7 +79,9 @@ def main() -> None:
         "command": command,
         "rates": rates,
     }
-    machines = [m for m in others if m.get("cpu") != cpu] + [mine]
+    # in place, so the first machine (the coverage page's reference) stays first
+    machines = [mine if m.get("cpu") == cpu else m for m in others]
+    machines += [] if old is not None else [mine]
     write_json_atomic({"machines": machines}, out)
     for r in rates:
         print(

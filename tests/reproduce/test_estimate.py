@@ -198,6 +198,13 @@ def test_costs_by_hand():
     assert planned == Cost("evaluate|darkroom|dicp|paper|plan|window", 8 * 120)
     copies = EvalConfig(model="-", out="-", episodes=10, plan=True, rollouts=4)
     assert eval_cost("darkroom", "dicp", tr, copies, 0).units == 4 * 8 * 120  # each task 4 times
+    # continuous actions: the greedy search costs about a model-free step, so every step counts
+    # (Meta-World: 50 test tasks x 7 episodes x 100 steps)
+    mw = TrainConfig(dataset="-", out="-", objective="dicp", preset="paper", context_length=500)
+    mw_ev = EvalConfig(model="-", out="-", episodes=7, plan=True)
+    assert eval_cost("metaworld-reach-wall", "dicp", mw, mw_ev, 0) == Cost(
+        "evaluate|metaworld-reach-wall|dicp|paper|plan|window", 50 * 7 * 100
+    )
     band = TrainConfig(dataset="-", out="-", objective="ad", preset="paper", attention="band")
     assert eval_cost("darkroom", "ad", band, ev, 0).key.endswith("|cache")  # auto: its semantics
 
