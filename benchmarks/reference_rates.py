@@ -55,7 +55,7 @@ def main() -> None:
         action="store_true",
         help="add the given caches' stages to this machine's table in --out (a calibration of one "
         "env added to an older table: a rate measured in both is the mean over all their "
-        "stages) instead of replacing it",
+        "stages) instead of replacing it; a cache already counted there would count twice",
     )
     a = p.parse_args()
     cpu = cpu_model()
@@ -65,7 +65,12 @@ def main() -> None:
     table = rate_table(records)
     rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
     out = Path(a.out)
-    others = reference_machines(json.loads(out.read_text())) if out.exists() else []
+    try:
+        others = reference_machines(json.loads(out.read_text())) if out.exists() else []
+    except ValueError as e:
+        raise SystemExit(f"{out}: not a rates table ({e}); pass another --out") from None
+    if any(not isinstance(m.get("rates"), list) for m in others):
+        raise SystemExit(f"{out}: a machine there has no list of rates; pass another --out")
     command = "python benchmarks/reference_rates.py " + " ".join(a.work)
     old = next((m for m in others if m.get("cpu") == cpu), None)
     if a.merge and old is not None:

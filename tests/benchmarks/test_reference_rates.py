@@ -50,3 +50,35 @@ def test_merge_keeps_thread_counts_apart():
     old = [_rate("evaluate|darkroom|ad|paper|no plan|window", 1, 3e-4, 0.4, 2)]
     new = [_rate("evaluate|darkroom|ad|paper|no plan|window", 2, 2e-4, 0.4, 2)]
     assert [r["threads"] for r in merge_rates(old, new)] == [1, 2]
+
+
+def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from lhf_hf.collection.backend_verdict import cpu_model
+    from lhf_hf.reproduce.stages import DONE_FILE
+
+    stage = tmp_path / "work" / "collect" / "abc"
+    stage.mkdir(parents=True)
+    record = {
+        "kind": "collect",
+        "wall_s": 10.0,
+        "cpu": cpu_model(),
+        "threads": 2,
+        "cost": {"key": "collect|darkroom|batched|ppo", "units": 1000.0},
+    }
+    (stage / DONE_FILE).write_text(json.dumps(record))
+    for text in ("{bad", '{"machines": [{"cpu": "x"}]}'):
+        out = tmp_path / "rates.json"
+        out.write_text(text)
+        run = subprocess.run(
+            [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out), "--merge"],
+            capture_output=True,
+            text=True,
+        )
+        assert run.returncode != 0
+        assert "not a rates table" in run.stderr or "no list of rates" in run.stderr, run.stderr
+        assert "Traceback" not in run.stderr
+        assert out.read_text() == text
