@@ -88,9 +88,10 @@ def eval_cost(
     """Env-steps; with planning on discrete actions, the planned ones: the beam search starts once
     the context holds K transitions (``rollout``), and a planned step costs tens of model-free
     ones, so the first K steps of each task are left out.  On continuous actions every env-step
-    counts, as without planning: the greedy search scores its samples in the one backbone call a
-    model-free step makes (Meta-World Reach-Wall, 50 tasks x 7 episodes, 5,050 planned actions:
-    306.2 s with planning, 306.4 s without; BENCHMARKS.md), so its time scales with all steps."""
+    counts, as without planning: the greedy search scores its samples in one more backbone call,
+    10 query tokens against the cached context, small beside the step's window (Meta-World
+    Reach-Wall, 50 tasks x 7 episodes, 5,050 planned actions: 306.2 s with planning, 306.4 s
+    without; BENCHMARKS.md), so its time scales with all steps."""
     spec = get_spec(env)
     tasks = len(resolve_tasks(env, cfg.tasks, split_seed))
     steps = cfg.episodes * spec.horizon
