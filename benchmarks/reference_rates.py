@@ -86,7 +86,8 @@ def main() -> None:
     }
     # in place, so the first machine (the coverage page's reference) stays first
     machines = [mine if m.get("cpu") == cpu else m for m in others]
-    machines += [] if old is not None else [mine]
+    if old is None:
+        machines.append(mine)
     write_json_atomic({"machines": machines}, out)
     for r in rates:
         print(
