@@ -25,19 +25,27 @@ import time
 from pathlib import Path
 
 from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
-from lhf_hf.reproduce.estimate import REFERENCE, measured_stages, rate_table, reference_machines
+from lhf_hf.reproduce.estimate import (
+    REFERENCE,
+    measured_stages,
+    rate_table,
+    rate_threads,
+    reference_machines,
+)
 from lhf_hf.utils.io import write_json_atomic
 
 
 def merge_rates(old: list[dict], new: list[dict]) -> list[dict]:
     """The older table with the new stages added: a (key, threads) measured in both gets the mean
     over all their stages (each table's rate is a mean over its stages, so the means are weighed
-    by them), one measured in only one table keeps its rate."""
-    pooled = {(r["key"], r["threads"]): dict(r) for r in old}
-    for r in new:
-        k = (r["key"], r["threads"])
+    by them), one measured in only one table keeps its rate.  A collection's, derivation's or
+    filter's rate is one whatever thread count either table filed it under (``rate_threads``)."""
+    pooled: dict[tuple[str, int], dict] = {}
+    for given in [*old, *new]:
+        k = (given["key"], rate_threads(given["key"], int(given["threads"])))
+        r = {**given, "threads": k[1]}
         if k not in pooled:
-            pooled[k] = dict(r)
+            pooled[k] = r
             continue
         p, n = pooled[k], pooled[k]["stages"] + r["stages"]
         for f in ("seconds_per_unit", "overhead_s"):
@@ -58,7 +66,7 @@ def main() -> None:
         "stages) instead of replacing it; a cache already counted there would count twice",
     )
     a = p.parse_args()
-    cpu = cpu_model()
+    cpu, isa = cpu_model(), instruction_set()
     records = [r for w in a.work for r in measured_stages(w) if r.get("cpu") == cpu]
     if not records:
         raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
@@ -72,26 +80,35 @@ def main() -> None:
     if any(not isinstance(m.get("rates"), list) for m in others):
         raise SystemExit(f"{out}: a machine there has no list of rates; pass another --out")
     command = "python benchmarks/reference_rates.py " + " ".join(a.work)
-    old = next((m for m in others if m.get("cpu") == cpu), None)
+
+    # A machine is its CPU model and instruction set: "AMD EPYC" names both a Zen 4 with AVX-512
+    # and an AVX2-only one, ~2x apart, whose tables must not pool.
+    def same(m: dict) -> bool:
+        return m.get("cpu") == cpu and m.get("isa", isa) == isa
+
+    old = next((m for m in others if same(m)), None)
+    date = time.strftime("%Y-%m-%d")
     if a.merge and old is not None:
         rates = merge_rates(old["rates"], rates)
         command = f"{old.get('command', '?')}; then {command} --merge"
+        if old.get("date") and not str(old["date"]).endswith(date):
+            date = f"{old['date']}, merged {date}"  # when each part was measured
     mine = {
         "cpu": cpu,
-        "isa": instruction_set(),
+        "isa": isa,
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-        "date": time.strftime("%Y-%m-%d"),
+        "date": date,
         "command": command,
         "rates": rates,
     }
     # in place, so the first machine (the coverage page's reference) stays first
-    machines = [mine if m.get("cpu") == cpu else m for m in others]
+    machines = [mine if same(m) else m for m in others]
     if old is None:
         machines.append(mine)
     write_json_atomic({"machines": machines}, out)
     for r in rates:
         print(
-            f"{r['key']:<50} {r['threads']} thread(s) {r['seconds_per_unit']:.3e} s/unit "
+            f"{r['key']:<50} {r['threads'] or 'any'} thread(s) {r['seconds_per_unit']:.3e} s/unit "
             f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stages)"
         )
     print(f"{len(rates)} rates ({len(table)} from {len(records)} stages now) -> {a.out}")

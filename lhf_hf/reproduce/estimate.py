@@ -143,12 +143,21 @@ def work_seconds(kind: str, folder: Path) -> float | None:
     return None
 
 
+def rate_threads(key: str, threads: int) -> int:
+    """The thread count a rate of ``key`` is filed under: a training's or evaluation's own, 0
+    (any) for a collection, derivation or filter, whose time does not depend on torch's threads:
+    their stages pool into one rate whatever count they ran with."""
+    return threads if _threaded(key) else 0
+
+
 def rate_table(records: Sequence[dict]) -> dict[tuple[str, str, int], dict]:
     """``(key, cpu, threads) -> {"seconds_per_unit", "overhead_s", "stages"}``: per group, the
-    mean rate of the scaling part and the mean start-up seconds."""
+    mean rate of the scaling part and the mean start-up seconds (``threads`` as ``rate_threads``
+    files it)."""
     groups: dict[tuple[str, str, int], list[dict]] = {}
     for r in records:
-        k = (r["cost"]["key"], r.get("cpu", "?"), int(r.get("threads", 0)))
+        key = r["cost"]["key"]
+        k = (key, r.get("cpu", "?"), rate_threads(key, int(r.get("threads", 0))))
         groups.setdefault(k, []).append(r)
     return {
         k: {
@@ -170,8 +179,8 @@ def reference_machines(data: dict) -> list[dict]:
 
 def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | None = None) -> dict:
     """The shipped reference rates for this machine: those of its CPU model, else of a machine with
-    its instruction set, else of any (the AVX-512 Intel and the AVX2 AMD machines differ ~2x, so a
-    like machine matters); a key the chosen machine never measured is taken from the next one, each
+    its instruction set, else of any (CPU models differ up to ~2x: the AVX2-only AMD EPYC ran the
+    stages ~2x slower than the AVX-512 Intel Xeon, so a like machine matters); a key the chosen machine never measured is taken from the next one, each
     rate marked with the CPU that measured it."""
     data = json.loads(path.read_text()) if path.exists() else {}
     cpu = cpu_model() if cpu is None else cpu
@@ -209,7 +218,8 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
         if same:
             v = same[0]
             return Rate(v["seconds_per_unit"], v.get("overhead_s", 0.0), source, v["stages"])
-        t, v = found[0]
+        # another thread count: the nearest measured one, converted
+        t, v = min(found, key=lambda tv: (abs(tv[0] - threads), tv[0]))
         factor = THREAD_FACTOR if threads < t else 1 / THREAD_FACTOR
         basis = f"{source}, {t}-thread rate x {factor:.2f}"
         spu = v["seconds_per_unit"] * factor
@@ -308,8 +318,8 @@ def render(est: dict, header: str) -> str:
         "",
         f"Rates: 'here' = stages finished on this machine ({est['cpu']}) under the work folder; "
         f"'reference' = lhf_hf/reproduce/rates.json ({est['reference_cpu']}); 'reference, CPU' = "
-        "a rate that table lacks, taken from the machine named (the AVX-512 Intel and the AVX2 "
-        "AMD machines differ up to ~2x).",
+        "a rate that table lacks, taken from the machine named (CPU models differ up to ~2x: "
+        "an AVX2-only AMD EPYC ran ~2x slower than the AVX-512 Intel Xeon).",
     ]
     if est["jobs"] > est["cores"]:
         lines.append(

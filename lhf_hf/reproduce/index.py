@@ -69,7 +69,8 @@ def _table(folder: Path, summary: dict) -> list[str]:
     head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
     hours = _num(summary.get("stage_s"))
     narrowed = exp["objectives"] if exp.get("narrowed") else None
-    # a table kept beside the command's default folder (another budget): --out names it
+    # a table kept beside the command's default folder (another budget): --out names it, relative
+    # to the folder that holds the root, as the default ``results/NAME`` is to the repository
     default = Path(default_out(exp["name"], exp["preset"], narrowed)).name
     where = None if folder.name == default else f"{folder.parent.name}/{folder.name}"
     facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where)}`"]

@@ -33,14 +33,14 @@ def test_merge_pools_shared_keys_by_stage_count_and_keeps_the_rest():
     ]
     got = {(r["key"], r["threads"]): r for r in merge_rates(old, new)}
     assert sorted(got) == [
-        ("filter", 2),
+        ("filter", 0),  # a filter's rate does not depend on torch's threads
         ("train|darkroom|ad|paper|window", 1),
         ("train|metaworld-reach-wall|ad|paper|window", 1),
     ]
     # (5 x 1e-6 + 1 x 4e-6) / 6 = 1.5e-6; (5 x 0 + 1 x 0.6) / 6 = 0.1
-    assert got["filter", 2]["seconds_per_unit"] == pytest.approx(1.5e-6)
-    assert got["filter", 2]["overhead_s"] == pytest.approx(0.1)
-    assert got["filter", 2]["stages"] == 6
+    assert got["filter", 0]["seconds_per_unit"] == pytest.approx(1.5e-6)
+    assert got["filter", 0]["overhead_s"] == pytest.approx(0.1)
+    assert got["filter", 0]["stages"] == 6
     assert got["train|darkroom|ad|paper|window", 1] == old[1]
     assert got["train|metaworld-reach-wall|ad|paper|window", 1] == new[1]
     assert old[0]["stages"] == 5  # the inputs are not changed
@@ -82,3 +82,60 @@ def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
         assert "not a rates table" in run.stderr or "no list of rates" in run.stderr, run.stderr
         assert "Traceback" not in run.stderr
         assert out.read_text() == text
+
+
+def test_merge_pools_a_collection_filed_under_two_thread_counts():
+    old = [_rate("collect|darkroom|batched|ppo", 2, 1e-5, 0.0, 3)]
+    new = [_rate("collect|darkroom|batched|ppo", 1, 2e-5, 0.0, 1)]
+    (r,) = merge_rates(old, new)
+    # (3 x 1e-5 + 1 x 2e-5) / 4
+    assert (r["threads"], r["stages"]) == (0, 4)
+    assert r["seconds_per_unit"] == pytest.approx(1.25e-5)
+
+
+def _collect_stage(work, wall):
+    import json
+
+    from lhf_hf.collection.backend_verdict import cpu_model
+    from lhf_hf.reproduce.stages import DONE_FILE
+
+    stage = work / "collect" / f"s{wall:g}"
+    stage.mkdir(parents=True)
+    record = {
+        "kind": "collect",
+        "wall_s": wall,
+        "cpu": cpu_model(),
+        "threads": 2,
+        "cost": {"key": "collect|darkroom|batched|ppo", "units": 1000.0},
+    }
+    (stage / DONE_FILE).write_text(json.dumps(record))
+
+
+def test_merge_adds_to_the_table_of_this_cpu_model_and_instruction_set_only(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
+
+    cpu, isa = cpu_model(), instruction_set()
+    _collect_stage(tmp_path / "work", 10.0)  # 0.01 s per transition
+    other_isa = {"cpu": cpu, "isa": isa + "-other", "date": "2026-01-01", "rates": [
+        _rate("collect|darkroom|batched|ppo", 0, 0.5, 0.0, 9)]}  # fmt: skip
+    mine = {"cpu": cpu, "isa": isa, "machine": "m", "date": "2026-01-02", "command": "c",
+            "rates": [_rate("collect|darkroom|batched|ppo", 2, 0.03, 0.0, 1)]}  # fmt: skip
+    out = tmp_path / "rates.json"
+    out.write_text(json.dumps({"machines": [other_isa, mine]}))
+    run = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out), "--merge"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    first, second = json.loads(out.read_text())["machines"]
+    assert first == other_isa  # the same model name with another instruction set: not pooled
+    (r,) = second["rates"]
+    assert r["seconds_per_unit"] == pytest.approx((0.03 + 0.01) / 2) and r["threads"] == 0
+    assert second["isa"] == isa and second["command"].startswith("c; then ")
+    # when each part was measured
+    assert second["date"].startswith("2026-01-02, merged ")

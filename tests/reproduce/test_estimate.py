@@ -90,6 +90,17 @@ def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
     # a collection does not depend on torch's threads
     assert find_rate("collect|x", 1, table, here, ref).seconds_per_unit == pytest.approx(0.005)
     # not measured here: the reference; not anywhere: None
+    # a collection that ran with another thread count pools with it (one rate, any count)
+    c1 = Stage("collect", "c1", {"i": "c1"}, _noop, cost=Cost("collect|x", 1000))
+    _record(tmp_path, c1, 15.0, 1, here)
+    pooled = rate_table(measured_stages(tmp_path))[("collect|x", here, 0)]
+    assert pooled["stages"] == 2 and pooled["seconds_per_unit"] == pytest.approx(0.01)
+    # a training measured at 1 and 4 threads, asked at 2: the nearest count (1) is converted
+    t4 = {("train|y", here, 4): {"seconds_per_unit": 9.0, "stages": 1},
+          ("train|y", here, 1): {"seconds_per_unit": 3.0, "stages": 1}}  # fmt: skip
+    r2 = find_rate("train|y", 2, t4, here, ref)
+    assert r2.seconds_per_unit == pytest.approx(3.0 / THREAD_FACTOR)
+    assert r2.basis == "here, 1-thread rate x 0.65"
     rr = find_rate("evaluate|x", 2, table, here, ref)
     assert rr.seconds_per_unit == 0.5 and rr.basis == "reference"
     assert find_rate("train|never", 2, table, here, ref) is None
