@@ -36,10 +36,12 @@ from lhf_hf.utils.io import write_json_atomic
 
 
 def merge_rates(old: list[dict], new: list[dict]) -> list[dict]:
-    """The older table with the new stages added: a (key, threads) measured in both gets the mean
-    over all their stages (each table's rate is a mean over its stages, so the means are weighed
-    by them), one measured in only one table keeps its rate.  A collection's, derivation's or
-    filter's rate is one whatever thread count either table filed it under (``rate_threads``)."""
+    """The older table with the new stages added: a (key, threads) measured in both gets the rate
+    of all their stages, one measured in only one table keeps its rate.  A rate is seconds over
+    units (``estimate.rate_table``), so two are pooled weighed by their ``units``; a rate that
+    does not record them (tables made before it was recorded) is weighed by its stages, as is the
+    start-up time (a mean over stages).  A collection's, derivation's or filter's rate is one
+    whatever thread count either table filed it under (``rate_threads``)."""
     pooled: dict[tuple[str, int], dict] = {}
     for given in [*old, *new]:
         k = (given["key"], rate_threads(given["key"], int(given["threads"])))
@@ -48,9 +50,17 @@ def merge_rates(old: list[dict], new: list[dict]) -> list[dict]:
             pooled[k] = r
             continue
         p, n = pooled[k], pooled[k]["stages"] + r["stages"]
-        for f in ("seconds_per_unit", "overhead_s"):
-            p[f] = (p[f] * p["stages"] + r[f] * r["stages"]) / n
+        by_units = "units" in p and "units" in r
+        w_old, w_new = (p["units"], r["units"]) if by_units else (p["stages"], r["stages"])
+        p["seconds_per_unit"] = (p["seconds_per_unit"] * w_old + r["seconds_per_unit"] * w_new) / (
+            w_old + w_new
+        )
+        p["overhead_s"] = (p["overhead_s"] * p["stages"] + r["overhead_s"] * r["stages"]) / n
         p["stages"] = n
+        if by_units:
+            p["units"] = w_old + w_new
+        else:
+            p.pop("units", None)  # a rate weighed partly by stages: its units are not all known
     return [pooled[k] for k in sorted(pooled)]
 
 

@@ -46,6 +46,22 @@ def test_merge_pools_shared_keys_by_stage_count_and_keeps_the_rest():
     assert old[0]["stages"] == 5  # the inputs are not changed
 
 
+def test_merge_weighs_rates_by_their_units_when_both_record_them():
+    # Meta-World Reach-Wall's SB3 collection: a calibration stage of 8,000 transitions in 12.7 s
+    # (mostly start-up) and a table's 1,000,000 in 355.1 s
+    old = [{**_rate("collect|metaworld-reach-wall|sb3|ppo", 0, 12.7 / 8000, 0.0, 1), "units": 8e3}]
+    new = [{**_rate("collect|metaworld-reach-wall|sb3|ppo", 0, 355.1 / 1e6, 0.0, 1), "units": 1e6}]
+    (r,) = merge_rates(old, new)
+    # (12.7 + 355.1) / 1,008,000 s per transition, the table's collection within 4 %
+    assert r["seconds_per_unit"] == pytest.approx(367.8 / 1.008e6)
+    assert (r["units"], r["stages"]) == (1.008e6, 2)
+    # one side without units: weighed by stages, and the pooled rate no longer claims units
+    (r,) = merge_rates(
+        [_rate("filter", 0, 1.0, 0.0, 1)], [{**_rate("filter", 0, 3.0, 0.0, 3), "units": 9.0}]
+    )
+    assert r["seconds_per_unit"] == pytest.approx((1.0 + 9.0) / 4) and "units" not in r
+
+
 def test_merge_keeps_thread_counts_apart():
     old = [_rate("evaluate|darkroom|ad|paper|no plan|window", 1, 3e-4, 0.4, 2)]
     new = [_rate("evaluate|darkroom|ad|paper|no plan|window", 2, 2e-4, 0.4, 2)]
@@ -135,6 +151,7 @@ def test_merge_adds_to_the_table_of_this_cpu_model_and_instruction_set_only(tmp_
     first, second = json.loads(out.read_text())["machines"]
     assert first == other_isa  # the same model name with another instruction set: not pooled
     (r,) = second["rates"]
+    # the shipped rate records no units: weighed by stages
     assert r["seconds_per_unit"] == pytest.approx((0.03 + 0.01) / 2) and r["threads"] == 0
     assert second["isa"] == isa and second["command"].startswith("c; then ")
     # when each part was measured

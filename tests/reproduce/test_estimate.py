@@ -74,18 +74,20 @@ def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
     records = measured_stages(tmp_path)
     assert len(records) == 4
     table = rate_table(records)
+    # seconds over units: (20 + 120) / (100 + 300), not the mean of 0.2 and 0.4
     assert table[("train|x", here, 2)] == {
-        "seconds_per_unit": pytest.approx(0.3),
+        "seconds_per_unit": pytest.approx(0.35),
         "overhead_s": 0.0,  # no training log to tell the steps' time from the start-up
         "stages": 2,
+        "units": 400.0,
     }
     ref = {"cpu": "Reference CPU", "rates": [{"key": "evaluate|x", "threads": 2,
                                                "seconds_per_unit": 0.5, "stages": 3}]}  # fmt: skip
     r = find_rate("train|x", 2, table, here, ref)
-    assert r.seconds_per_unit == pytest.approx(0.3) and r.basis == "here"
+    assert r.seconds_per_unit == pytest.approx(0.35) and r.basis == "here"
     # one thread (--jobs 2): the measured 2-thread rate times the side-by-side factor
     r1 = find_rate("train|x", 1, table, here, ref)
-    assert r1.seconds_per_unit == pytest.approx(0.3 * THREAD_FACTOR)
+    assert r1.seconds_per_unit == pytest.approx(0.35 * THREAD_FACTOR)
     assert r1.basis == "here, 2-thread rate x 1.53"
     # a collection does not depend on torch's threads
     assert find_rate("collect|x", 1, table, here, ref).seconds_per_unit == pytest.approx(0.005)
