@@ -68,7 +68,10 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text
     # an arm other than lhf is named; no paper value, one run (no std)
-    assert "| darkroom-large (lam2) | DPT | +5.0 | - | - | helps (1 run, no error bar) |" in text
+    assert (
+        "| darkroom-large (lam2) | DPT | +5.0 | - | - | not judged (1 run, no error bar): the return is higher with LHF |"
+        in text
+    )
     assert "not-a-table" not in text
     # what LHF kept, averaged over the runs; a table made before it was recorded says nothing
     assert (
