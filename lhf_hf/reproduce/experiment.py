@@ -59,6 +59,9 @@ CONFIGS = {
     "train": TrainConfig,
     "evaluate": EvalConfig,
 }
+#: Run r uses seed r and train/test split r; the paper reports 3-5 runs. A larger count is a typo
+#: whose plan (tens of stages per run) would take minutes and gigabytes to build, even to estimate.
+MAX_RUNS = 100
 TOP_KEYS = {"title", "paper_table", "budget", "envs", "objectives", "runs", *CONFIGS}
 
 
@@ -135,8 +138,8 @@ class Experiment:
         bad = [o for o in self.objectives if o not in OBJECTIVES]
         if bad or not self.objectives or not self.envs:
             raise ValueError(f"{self.name}: objectives must be a non-empty subset of {OBJECTIVES}")
-        if self.runs < 1:
-            raise ValueError(f"{self.name}: runs must be >= 1, got {self.runs}")
+        if not 1 <= self.runs <= MAX_RUNS:
+            raise ValueError(f"{self.name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
         if self.evaluate.get("plan_dicp", False) not in (True, False, "both"):
             raise ValueError(
                 f"{self.name}: evaluate.plan_dicp must be true, false or 'both', "

@@ -63,6 +63,9 @@ def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
     assert main.envs == ("darkroom", "darkroom-permuted", "darkroom-large", "dark-key-to-door")
     assert load_experiment("darkroom-main", "quick").envs == ("darkroom",)
     assert load_experiment("darkroom-main", "cpu", runs=5).runs == 5
+    for runs in (0, 101, 1_000_000):  # refused before any stage is planned
+        with pytest.raises(ValueError, match=r"runs must be 1 \.\. 100"):
+            load_experiment("darkroom-main", "quick", runs=runs)
 
 
 def test_spec_errors(tmp_path):
