@@ -3,8 +3,8 @@
     python benchmarks/reference_rates.py WORK [WORK ...] [--out lhf_hf/reproduce/rates.json]
 
 Reads every ``stage.json`` under the given stage caches that recorded its cost (stages finished
-by a version with ``--estimate``), keeps those of this machine's CPU model, and writes the mean
-seconds per unit of each (key, torch threads) with the number of stages behind it, as this
+by a version with ``--estimate``), keeps those of this machine's CPU model, and writes the seconds
+over units of each (key, torch threads) with the number of stages behind it, as this
 machine's table in ``--out``: the tables of other machines there are kept (``--estimate`` uses
 the one of a like machine, ``estimate.load_reference``).  The shipped
 table was made from ``benchmarks/calibration/gridworlds.yaml`` (short stages of every kind),
@@ -72,8 +72,8 @@ def main() -> None:
         "--merge",
         action="store_true",
         help="add the given caches' stages to this machine's table in --out (a calibration of one "
-        "env added to an older table: a rate measured in both is the mean over all their "
-        "stages) instead of replacing it; a cache already counted there would count twice",
+        "env added to an older table: a rate measured in both is pooled, weighed by its "
+        "units) instead of replacing it; a cache already counted there would count twice",
     )
     a = p.parse_args()
     cpu, isa = cpu_model(), instruction_set()

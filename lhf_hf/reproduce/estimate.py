@@ -189,8 +189,9 @@ def reference_machines(data: dict) -> list[dict]:
 def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | None = None) -> dict:
     """The shipped reference rates for this machine: those of its CPU model, else of a machine with
     its instruction set, else of any (CPU models differ up to ~2x: the AVX2-only AMD EPYC ran the
-    stages ~2x slower than the AVX-512 Intel Xeon, so a like machine matters); a key the chosen machine never measured is taken from the next one, each
-    rate marked with the CPU that measured it."""
+    stages ~2x slower than the AVX-512 Intel Xeon, so a like machine matters); a key the chosen
+    machine never measured is taken from the next one, each rate marked with the CPU that
+    measured it."""
     data = json.loads(path.read_text()) if path.exists() else {}
     cpu = cpu_model() if cpu is None else cpu
     isa = instruction_set() if isa is None else isa
