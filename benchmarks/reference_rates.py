@@ -31,6 +31,7 @@ from lhf_hf.reproduce.estimate import (
     rate_table,
     rate_threads,
     reference_machines,
+    same_machine,
 )
 from lhf_hf.utils.io import write_json_atomic
 
@@ -77,32 +78,38 @@ def main() -> None:
     )
     a = p.parse_args()
     cpu, isa = cpu_model(), instruction_set()
-    records = [r for w in a.work for r in measured_stages(w) if r.get("cpu") == cpu]
-    if not records:
-        raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
-    table = rate_table(records)
-    rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
     out = Path(a.out)
+    # the table in --out is read (and refused when it is not one) before any work
+    if out.exists() and not out.is_file():
+        raise SystemExit(f"{out}: not a file; pass a rates table's path as --out")
     try:
         others = reference_machines(json.loads(out.read_text())) if out.exists() else []
-    except ValueError as e:
+    except (OSError, ValueError) as e:
         raise SystemExit(f"{out}: not a rates table ({e}); pass another --out") from None
-    if any(not isinstance(m.get("rates"), list) for m in others):
-        raise SystemExit(f"{out}: a machine there has no list of rates; pass another --out")
+    records = [r for w in a.work for r in measured_stages(w) if same_machine(r, cpu, isa)]
+    if not records:
+        raise SystemExit(f"no finished stage with a recorded cost on {cpu} ({isa}) under {a.work}")
+    table = rate_table(records)
+    rates = [{"key": k, "threads": t, **v} for (k, _, t), v in sorted(table.items())]
     command = "python benchmarks/reference_rates.py " + " ".join(a.work)
 
-    # A machine is its CPU model and instruction set: "AMD EPYC" names both a Zen 4 with AVX-512
-    # and an AVX2-only one, ~2x apart, whose tables must not pool.
-    def same(m: dict) -> bool:
-        return m.get("cpu") == cpu and m.get("isa", isa) == isa
-
-    old = next((m for m in others if same(m)), None)
+    # A machine is its CPU model and instruction set (``same_machine``).  Two tables of this
+    # machine (one written before tables recorded the instruction set) become one: with --merge
+    # their rates pool, else this machine's new table replaces both.
+    olds = [m for m in others if same_machine(m, cpu, isa)]
     date = time.strftime("%Y-%m-%d")
-    if a.merge and old is not None:
-        rates = merge_rates(old["rates"], rates)
-        command = f"{old.get('command', '?')}; then {command} --merge"
-        if old.get("date") and not str(old["date"]).endswith(date):
-            date = f"{old['date']}, merged {date}"  # when each part was measured
+    if a.merge and olds:
+        merged = olds[0]["rates"]
+        for m in olds[1:]:
+            merged = merge_rates(merged, m["rates"])
+        rates = merge_rates(merged, rates)
+        command = "; ".join(m.get("command", "?") for m in olds) + f"; then {command} --merge"
+        dates = [str(m["date"]) for m in olds if m.get("date")]
+        if dates:  # when each part was measured
+            joined = ", ".join(dates)
+            date = joined if joined.endswith(date) else f"{joined}, merged {date}"
+        if len(olds) > 1:
+            print(f"{len(olds)} tables of this machine in {out}: pooled into one")
     mine = {
         "cpu": cpu,
         "isa": isa,
@@ -111,15 +118,16 @@ def main() -> None:
         "command": command,
         "rates": rates,
     }
-    # in place, so the first machine (the coverage page's reference) stays first
-    machines = [mine if same(m) else m for m in others]
-    if old is None:
-        machines.append(mine)
+    # in place of the first table of this machine, so the first machine (the coverage page's
+    # reference) stays first; this machine's other tables went into it
+    first = next((i for i, m in enumerate(others) if same_machine(m, cpu, isa)), len(others))
+    machines = [m for i, m in enumerate(others) if i < first or not same_machine(m, cpu, isa)]
+    machines.insert(first, mine)
     write_json_atomic({"machines": machines}, out)
     for r in rates:
         print(
             f"{r['key']:<50} {r['threads'] or 'any'} thread(s) {r['seconds_per_unit']:.3e} s/unit "
-            f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stages)"
+            f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stage{'s' * (r['stages'] != 1)})"
         )
     print(f"{len(rates)} rates ({len(table)} from {len(records)} stages now) -> {a.out}")
 

@@ -210,8 +210,9 @@ def exported_hashes(root: Path) -> tuple[dict[str, str], list[str]]:
 
 def _reference() -> dict:
     """The first shipped machine's rates (its CPU named in the page), whichever machine renders."""
-    data = json.loads(REFERENCE.read_text()) if REFERENCE.exists() else {}
-    first = (reference_machines(data) or [{}])[0]
+    if not REFERENCE.exists():
+        return load_reference()
+    first = reference_machines(json.loads(REFERENCE.read_text()))[0]
     return load_reference(cpu=first.get("cpu", "?"), isa=first.get("isa", "?"))
 
 

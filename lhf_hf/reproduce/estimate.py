@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -110,19 +111,40 @@ def eval_cost(
 # ---- rates and the estimate
 def measured_stages(work: str | Path) -> list[dict]:
     """Every finished stage under ``work`` that recorded its cost (older ones did not), with
-    ``work_s``: the seconds of the part that scales with the units (``work_seconds``)."""
+    ``work_s``: the seconds of the part that scales with the units (``work_seconds``).  A mark that
+    is not a cost record of the expected shape (damaged, or edited by hand) is left out: that stage
+    is no rate, and whether it runs again is the stage cache's business."""
     out = []
     for path in sorted(Path(work).glob(f"*/*/{DONE_FILE}")):
         try:
             rec = json.loads(path.read_text())
         except (OSError, ValueError):
             continue  # a damaged mark: that stage will run again anyway
-        cost = rec.get("cost")
-        if isinstance(cost, dict) and cost.get("units", 0) > 0 and rec.get("wall_s", 0) > 0:
-            work_s = work_seconds(rec.get("kind", ""), path.parent)
-            rec["work_s"] = min(work_s, rec["wall_s"]) if work_s else rec["wall_s"]
-            out.append(rec)
+        if not _cost_record(rec):
+            continue
+        work_s = work_seconds(rec.get("kind", ""), path.parent)
+        usable = work_s is not None and math.isfinite(work_s) and work_s > 0
+        rec["work_s"] = min(work_s, rec["wall_s"]) if usable else rec["wall_s"]
+        out.append(rec)
     return out
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _cost_record(rec) -> bool:
+    """Whether a ``stage.json`` holds a usable cost: a string key, positive units and wall time,
+    integer threads, and a string kind and CPU model where given."""
+    if not isinstance(rec, dict) or not isinstance(cost := rec.get("cost"), dict):
+        return False
+    return (
+        isinstance(cost.get("key"), str)
+        and _number(cost.get("units")) and cost["units"] > 0
+        and _number(rec.get("wall_s")) and rec["wall_s"] > 0
+        and isinstance(rec.get("threads", 0), int) and not isinstance(rec.get("threads"), bool)
+        and all(isinstance(rec.get(f, ""), str) for f in ("kind", "cpu", "isa"))
+    )  # fmt: skip
 
 
 def work_seconds(kind: str, folder: Path) -> float | None:
@@ -178,28 +200,95 @@ def rate_table(records: Sequence[dict]) -> dict[tuple[str, str, int], dict]:
     return out
 
 
-def reference_machines(data: dict) -> list[dict]:
-    """The machines of a ``rates.json``: ``{"machines": [...]}``, or one machine's table (the
-    older single-machine form)."""
+def reference_machines(data) -> list[dict]:
+    """The machines of a rates table: ``{"machines": [...]}``, or one machine's table (the older
+    single-machine form), each checked (``check_machine``).  Anything else (``{}``, a list, a
+    results file) raises ``ValueError`` saying what is wrong, so a writer never takes it for an
+    empty table and replaces it."""
+    if not isinstance(data, dict):
+        raise ValueError(f"a rates table is a JSON object, not {type(data).__name__}")
     if "machines" in data:
-        return list(data["machines"])
-    return [data] if "rates" in data else []
+        machines = data["machines"]
+        if not isinstance(machines, list) or not machines:
+            raise ValueError('"machines" must be a non-empty list of machine tables')
+    elif "rates" in data:
+        machines = [data]
+    else:
+        raise ValueError('neither "machines" nor "rates" is there')
+    for i, m in enumerate(machines):
+        check_machine(m, f"machine {i}")
+    return list(machines)
+
+
+#: Fields of one rate in a rates table: name -> (types, required).
+_RATE_FIELDS = {
+    "key": ((str,), True),
+    "threads": ((int,), True),
+    "seconds_per_unit": ((int, float), True),
+    "stages": ((int,), True),
+    "overhead_s": ((int, float), False),
+    "units": ((int, float), False),
+}
+
+
+def check_machine(m, where: str = "machine") -> None:
+    """``ValueError`` unless ``m`` is one machine's table: ``cpu`` / ``isa`` strings if given, and
+    ``rates``, a list of rates with a string key, integer threads (>= 0) and stages (>= 1), and
+    finite non-negative seconds (``_RATE_FIELDS``)."""
+    if not isinstance(m, dict):
+        raise ValueError(f"{where} is {type(m).__name__}, not an object")
+    for name in ("cpu", "isa"):
+        if name in m and not isinstance(m[name], str):
+            raise ValueError(f"{where}: {name!r} must be a string, got {m[name]!r}")
+    if not isinstance(m.get("rates"), list):
+        raise ValueError(f"{where} has no list of rates")
+    for j, r in enumerate(m["rates"]):
+        at = f"{where}, rate {j}"
+        if not isinstance(r, dict):
+            raise ValueError(f"{at} is {type(r).__name__}, not an object")
+        for name, (types, required) in _RATE_FIELDS.items():
+            if name not in r:
+                if required:
+                    raise ValueError(f"{at} has no {name!r}")
+                continue
+            v = r[name]
+            if isinstance(v, bool) or not isinstance(v, types):
+                raise ValueError(f"{at}: {name!r} is {v!r}")
+            low = 1 if name == "stages" else 0
+            if not isinstance(v, str) and not (math.isfinite(v) and v >= low):
+                raise ValueError(f"{at}: {name!r} is {v!r}")
+
+
+def same_machine(m: dict, cpu: str, isa: str) -> bool:
+    """A table or stage record of this machine: its CPU model and instruction set (one recorded
+    without an instruction set, older, matches on the model alone).  "AMD EPYC" names both a Zen 4
+    with AVX-512 and an AVX2-only one, ~2x apart, whose rates must not pool."""
+    return m.get("cpu") == cpu and m.get("isa", isa) == isa
 
 
 def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | None = None) -> dict:
-    """The shipped reference rates for this machine: those of its CPU model, else of a machine with
-    its instruction set, else of any (CPU models differ up to ~2x: the AVX2-only AMD EPYC ran the
-    stages ~2x slower than the AVX-512 Intel Xeon, so a like machine matters); a key the chosen
-    machine never measured is taken from the next one, each rate marked with the CPU that
-    measured it."""
-    data = json.loads(path.read_text()) if path.exists() else {}
+    """The shipped reference rates for this machine: those of its CPU model and instruction set,
+    else of a machine with its instruction set, else of its CPU model, else of any (machines differ
+    up to ~2x, and the instruction set more than the name: the AVX2-only AMD EPYC ran the stages
+    ~2x slower than the AVX-512 Intel Xeon, and shares its name with a Zen 4 with AVX-512); a key
+    the chosen machine never measured is taken from the next one, each rate marked with the CPU
+    that measured it.  A malformed table raises ``ValueError`` naming the file."""
+    if not path.exists():
+        return {"cpu": "?", "rates": []}
+    try:
+        machines = reference_machines(json.loads(path.read_text()))
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: not a rates table ({e})") from None
     cpu = cpu_model() if cpu is None else cpu
     isa = instruction_set() if isa is None else isa
     machines = sorted(
-        reference_machines(data), key=lambda m: (m.get("cpu") != cpu, m.get("isa") != isa)
+        machines,
+        key=lambda m: (
+            not (m.get("cpu") == cpu and m.get("isa") == isa),
+            m.get("isa") != isa,
+            m.get("cpu") != cpu,
+        ),
     )
-    if not machines:
-        return {"cpu": "?", "rates": []}
     rates, keys = [], set()
     for m in machines:
         mine = [{**r, "cpu": m.get("cpu", "?")} for r in m["rates"] if r["key"] not in keys]
@@ -245,8 +334,8 @@ def estimate(
     stages: Sequence[Stage], work: str | Path, jobs: int = 1, reference: dict | None = None
 ) -> dict:
     """Per stage: cached or not, its estimated seconds and the rate's basis; and the totals."""
-    cpu, threads_here = cpu_model(), torch.get_num_threads()
-    table = rate_table(measured_stages(work))
+    cpu, isa, threads_here = cpu_model(), instruction_set(), torch.get_num_threads()
+    table = rate_table([r for r in measured_stages(work) if same_machine(r, cpu, isa)])
     reference = load_reference() if reference is None else reference
     rows, missing = [], []
     for s in stages:
@@ -359,4 +448,6 @@ def duration(seconds: float) -> str:
         return f"{s} s"
     if s < 5400:
         return f"{s / 60:.1f} min"
-    return f"{s / 3600:.1f} h"
+    if s < 2 * 86400:
+        return f"{s / 3600:.1f} h"
+    return f"{s / 86400:,.1f} days"  # the paper preset on 2 cores: thousands of hours

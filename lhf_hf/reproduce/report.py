@@ -31,9 +31,10 @@ def verdict(
     if _finite_pair(ci):
         return _judge(ci, "the 95% CI spans 0")
     if e_std is None:
-        # one run has no spread to judge against: its sign is reported, never a verdict
+        # one paired run (or baseline and LHF runs that pair only once) has no spread to judge
+        # against: its sign is reported, never a verdict
         side = "higher" if e > 0 else "lower" if e < 0 else "level"
-        return f"not judged (1 run, no error bar): the return is {side} with LHF"
+        return f"not judged (1 paired run, no error bar): the return is {side} with LHF"
     if e - e_std > 0:
         return "helps"
     if e + e_std < 0:

@@ -176,9 +176,9 @@ def reproduce(
         into ``work`` first; what they hold is not run again (``portable.py``).
     """
     check_jobs(jobs)
+    work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
     out = Path(out or default_out(exp))
-    work = Path(work)
     stages, evals = plan_stages(exp, work)
     _import(import_from, work, stages, echo, exp)
     echo(
@@ -245,14 +245,18 @@ def estimate_experiment(
     on this machine (``estimate.py``), as text; runs nothing (``import_from`` is imported first,
     as by ``reproduce``, so the estimate covers what is left)."""
     check_jobs(jobs)
+    work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
-    stages, evals = plan_stages(exp, Path(work))
-    _import(import_from, Path(work), stages, echo, exp)
-    est = estimate(needed_stages(stages, Path(work), _targets(evals)), work, jobs)
+    stages, evals = plan_stages(exp, work)
+    _import(import_from, work, stages, echo, exp)
+    needed = needed_stages(stages, work, _targets(evals))
+    est = estimate(needed, work, jobs)
+    left_out = len(stages) - len(needed)
     head = (
         f"[lhf reproduce --estimate] {exp.name}, preset {preset}: {exp.runs} run(s) x "
-        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
-        f"work folder {work}"
+        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages"
+        + (f" ({left_out} left out: what reads them is done)" if left_out else "")
+        + f"; work folder {work}"
     )
     return render(est, head)
 
@@ -268,8 +272,9 @@ def export_experiment(
     """``lhf reproduce ... --export-stages DEST``: copy this plan's finished evaluations (and the
     records of its other finished stages) from ``work`` to ``DEST``, to commit or carry to another
     machine and import there (``portable.py``); runs nothing.  Returns the counts."""
+    work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
-    stages, _ = plan_stages(exp, Path(work))
+    stages, _ = plan_stages(exp, work)
     about = {
         "experiment": exp.name,
         "preset": preset,
@@ -279,6 +284,17 @@ def export_experiment(
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     return export_stages(stages, work, dest, about)
+
+
+def check_work(work: str | Path) -> Path:
+    """The stage cache's folder: refused when empty (``--work ''`` would be the current folder) or
+    when it is a file (a mistyped path would otherwise be estimated as an empty cache)."""
+    if not str(work).strip():
+        raise ValueError("the work folder (--work) is empty: name the stage cache's folder")
+    path = Path(work)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--work {work}: a file, not a stage cache folder")
+    return path
 
 
 def _targets(evals: dict) -> list[Stage]:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from lhf_hf.collection.backend_verdict import cpu_model
+from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
 from lhf_hf.utils.io import write_json_atomic
 
 DONE_FILE = "stage.json"
@@ -92,6 +92,7 @@ class StageRunner:
             done.update(
                 cost=dataclasses.asdict(stage.cost),
                 cpu=cpu_model(),
+                isa=instruction_set(),  # "AMD EPYC" names machines ~2x apart (estimate.same_machine)
                 threads=torch.get_num_threads(),
             )
         elif resumed:

@@ -86,18 +86,50 @@ def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
         "cost": {"key": "collect|darkroom|batched|ppo", "units": 1000.0},
     }
     (stage / DONE_FILE).write_text(json.dumps(record))
-    for text in ("{bad", '{"machines": [{"cpu": "x"}]}'):
+    malformed = (
+        "{bad",
+        '{"machines": [{"cpu": "x"}]}',
+        "{}",  # valid JSON, no table: once silently replaced
+        "[]",
+        "5",
+        "null",
+        '{"machines": 5}',
+        '{"machines": [1]}',
+        '{"rates": [1]}',
+        '{"machines": [{"cpu": "x", "rates": [{"key": "k", "seconds_per_unit": 1, "stages": 1}]}]}',
+        '{"machines": [{"rates": [{"key": "k", "threads": "two", "seconds_per_unit": 1, "stages": 1}]}]}',
+        '{"machines": [{"rates": [{"key": "k", "threads": 1, "seconds_per_unit": -1, "stages": 1}]}]}',
+        '{"kind": "report", "cells": []}',  # another lhf output (results.json)
+    )
+
+    def refusal(out, *extra):
+        # in-process (each subprocess would import torch): SystemExit with a message is what a
+        # user sees as one line
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(
+                sys,
+                "argv",
+                ["reference_rates.py", str(tmp_path / "work"), "--out", str(out), *extra],
+            )
+            with pytest.raises(SystemExit) as e:
+                _module.main()
+        return str(e.value.code)
+
+    for text in malformed:
         out = tmp_path / "rates.json"
         out.write_text(text)
-        run = subprocess.run(
-            [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out), "--merge"],
-            capture_output=True,
-            text=True,
-        )
-        assert run.returncode != 0
-        assert "not a rates table" in run.stderr or "no list of rates" in run.stderr, run.stderr
-        assert "Traceback" not in run.stderr
+        assert "not a rates table" in refusal(out, "--merge"), text
         assert out.read_text() == text
+    assert "not a file" in refusal(tmp_path)  # a folder as --out
+    # the command line: a one-line refusal, no traceback, the file unchanged
+    out.write_text("{}")
+    run = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode != 0 and "not a rates table" in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr and out.read_text() == "{}"
 
 
 def test_merge_pools_a_collection_filed_under_two_thread_counts():
@@ -156,3 +188,51 @@ def test_merge_adds_to_the_table_of_this_cpu_model_and_instruction_set_only(tmp_
     assert second["isa"] == isa and second["command"].startswith("c; then ")
     # when each part was measured
     assert second["date"].startswith("2026-01-02, merged ")
+
+
+def test_two_tables_of_this_machine_pool_into_one(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
+
+    cpu, isa = cpu_model(), instruction_set()
+    _collect_stage(tmp_path / "work", 10.0)  # 0.01 s per transition
+    other = {"cpu": "Other CPU", "isa": "avx2", "rates": [_rate("filter", 0, 1.0, 0.0, 1)]}
+    # one written before tables recorded the instruction set, one after: both this machine's
+    no_isa = {"cpu": cpu, "date": "2026-01-01", "command": "a",
+              "rates": [_rate("collect|darkroom|batched|ppo", 0, 0.02, 0.0, 1)]}  # fmt: skip
+    with_isa = {"cpu": cpu, "isa": isa, "date": "2026-01-02", "command": "b",
+                "rates": [_rate("train|darkroom|ad|paper|window", 1, 4e-5, 0.5, 2)]}  # fmt: skip
+    out = tmp_path / "rates.json"
+    out.write_text(json.dumps({"machines": [other, no_isa, with_isa]}))
+    run = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out), "--merge"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "2 tables of this machine" in run.stdout
+    assert "(1 stage)" in run.stdout or "(2 stages)" in run.stdout
+    machines = json.loads(out.read_text())["machines"]
+    assert len(machines) == 2 and machines[0] == other  # the first stays first
+    got = {r["key"]: r for r in machines[1]["rates"]}
+    # nothing of either table lost: the second's training rate kept, the collection pooled
+    assert got["train|darkroom|ad|paper|window"]["seconds_per_unit"] == 4e-5
+    assert got["collect|darkroom|batched|ppo"]["seconds_per_unit"] == pytest.approx(0.015)
+    assert got["collect|darkroom|batched|ppo"]["stages"] == 2
+    assert machines[1]["command"].startswith("a; b; then ")
+    assert machines[1]["date"].startswith("2026-01-01, 2026-01-02, merged ")
+    # without --merge: this machine's new table replaces both
+    out.write_text(json.dumps({"machines": [other, no_isa, with_isa]}))
+    run = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "work"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    machines = json.loads(out.read_text())["machines"]
+    assert len(machines) == 2 and [r["key"] for r in machines[1]["rates"]] == [
+        "collect|darkroom|batched|ppo"
+    ]

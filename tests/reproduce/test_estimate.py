@@ -127,8 +127,21 @@ def test_reference_of_a_like_machine_first_and_the_others_for_what_it_lacks(tmp_
     assert (r.seconds_per_unit, r.basis) == (2.0, "reference")
     r = find_rate("evaluate|b", 1, {}, "AMD Z", ref)
     assert (r.seconds_per_unit, r.basis) == (3.0, "reference, Intel X")
-    # the same CPU model wins over the instruction set
-    assert load_reference(path, cpu="Intel X", isa="avx2")["cpu"] == "Intel X"
+    # the instruction set wins over the model name: "AMD EPYC" names a Zen 4 with AVX-512 and an
+    # AVX2-only machine, ~2x apart; model and instruction set together win over either
+    assert load_reference(path, cpu="Intel X", isa="avx2")["cpu"] == "AMD Y"
+    assert load_reference(path, cpu="Intel X", isa="avx512")["cpu"] == "Intel X"
+    assert load_reference(path, cpu="Intel X", isa="other")["cpu"] == "Intel X"
+    zen4 = machine("AMD EPYC", "avx512", {"train|a": 1.0})
+    zen2 = machine("AMD EPYC", "avx2", {"train|a": 2.0})
+    path.write_text(json.dumps({"machines": [zen4, zen2]}))
+    assert load_reference(path, cpu="AMD EPYC", isa="avx2")["rates"][0]["seconds_per_unit"] == 2.0
+    # a malformed table: an error naming the file, not a traceback from deep inside
+    for bad in ("{}", "[]", '{"machines": [{"rates": [{"key": "k"}]}]}'):
+        path.write_text(bad)
+        with pytest.raises(ValueError, match="rates.json: not a rates table"):
+            load_reference(path)
+    path.write_text(json.dumps({"machines": [intel, amd]}))
     # the single-machine form (older rates.json) still reads; no file: no rates
     path.write_text(json.dumps(intel))
     assert load_reference(path, cpu="AMD Z", isa="avx2")["cpu"] == "Intel X"
@@ -248,3 +261,64 @@ def test_jobs_must_be_a_positive_integer():
             estimate_experiment("darkroom-main", "cpu", jobs=bad)
         with pytest.raises(ValueError, match="jobs must be an integer >= 1"):
             reproduce("darkroom-main", "cpu", jobs=bad)
+
+
+def test_malformed_stage_records_are_no_rates_and_other_machines_are_left_out(tmp_path):
+    from lhf_hf.collection.backend_verdict import instruction_set
+
+    here, isa = cpu_model(), instruction_set()
+    good = Stage("collect", "g", {"i": "g"}, _noop, cost=Cost("collect|x", 1000))
+    _record(tmp_path, good, 5.0, 2, here)
+    damaged = [
+        [],
+        {"kind": "collect", "wall_s": 5.0, "cost": {"key": "collect|x", "units": "1000"}},
+        {"kind": "collect", "wall_s": 5.0, "cost": {"units": 1000}},
+        {"kind": "collect", "wall_s": 5.0, "threads": "two", "cost": {"key": "k", "units": 1}},
+        {"kind": "collect", "wall_s": "5", "cost": {"key": "k", "units": 1}},
+        {"kind": "collect", "wall_s": 5.0, "cpu": 3, "cost": {"key": "k", "units": 1}},
+        {"kind": "collect", "wall_s": float("nan"), "cost": {"key": "k", "units": 1}},
+    ]
+    for i, rec in enumerate(damaged):
+        d = tmp_path / "collect" / f"bad{i}"
+        d.mkdir()
+        (d / DONE_FILE).write_text(json.dumps(rec))
+    assert [r["label"] for r in measured_stages(tmp_path)] == ["g"]
+    # the same model name with another instruction set is another machine: not this one's rate
+    other = Stage("collect", "o", {"i": "o"}, _noop, cost=Cost("collect|x", 1000))
+    _record(tmp_path, other, 500.0, 2, here)
+    rec = json.loads((other.path(tmp_path) / DONE_FILE).read_text())
+    (other.path(tmp_path) / DONE_FILE).write_text(json.dumps({**rec, "isa": isa + "-other"}))
+    est = estimate([Stage("collect", "n", {"i": "n"}, _noop, cost=Cost("collect|x", 1000))],
+                   tmp_path, reference={"cpu": "?", "rates": []})  # fmt: skip
+    assert est["stages"][0]["seconds"] == pytest.approx(5.0)  # the good stage's rate alone
+    # a stage finished here records the instruction set
+    from lhf_hf.reproduce.stages import StageRunner
+
+    fresh = Stage("filter", "f", {"i": "f"}, lambda out: time.sleep(0.15), cost=Cost("filter", 10))
+    StageRunner(tmp_path, echo=lambda m: None).run(fresh)
+    assert json.loads((fresh.path(tmp_path) / DONE_FILE).read_text())["isa"] == isa
+
+
+def test_durations_read_at_a_glance():
+    from lhf_hf.reproduce.estimate import duration
+
+    assert duration(45) == "45 s"
+    assert duration(600) == "10.0 min"
+    assert duration(7200) == "2.0 h"
+    assert duration(47 * 3600) == "47.0 h"
+    assert duration(3000 * 3600) == "125.0 days"  # the paper preset on 2 cores
+
+
+def test_the_work_folder_must_be_a_folder(tmp_path):
+    from lhf_hf.reproduce import estimate_experiment, export_experiment, reproduce
+
+    f = tmp_path / "stage.json"
+    f.write_text("{}")
+    for work in (f, "", "  "):
+        with pytest.raises(ValueError, match="not a stage cache folder|--work"):
+            estimate_experiment("darkroom-main", "quick", work=work)
+        with pytest.raises(ValueError, match="not a stage cache folder|--work"):
+            reproduce("darkroom-main", "quick", work=work, out=tmp_path / "r")
+        with pytest.raises(ValueError, match="not a stage cache folder|--work"):
+            export_experiment("darkroom-main", tmp_path / "x", "quick", work=work)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "x").exists()

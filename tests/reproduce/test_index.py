@@ -69,7 +69,7 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text
     # an arm other than lhf is named; no paper value, one run (no std)
     assert (
-        "| darkroom-large (lam2) | DPT | +5.0 | - | - | not judged (1 run, no error bar): the return is higher with LHF |"
+        "| darkroom-large (lam2) | DPT | +5.0 | - | - | not judged (1 paired run, no error bar): the return is higher with LHF |"
         in text
     )
     assert "not-a-table" not in text

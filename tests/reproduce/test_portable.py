@@ -49,6 +49,8 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     text = estimate_experiment(spec, "quick", 2, work_b, import_from=[carried], echo=print)
     assert "imported from" in capsys.readouterr().out
     assert "8 of 10 stages to run" in text
+    # the header's plan counts 12 stages: it says the 2 not in the list and why
+    assert "12 stages (2 left out: what reads them is done)" in text.splitlines()[0]
 
     lines: list[str] = []
     report = reproduce(

@@ -262,7 +262,10 @@ def test_sweep_arms_and_verdicts():
     assert verdict(-0.10, 0.05) == "hurts"
     assert verdict(0.03, 0.05).startswith("no clear effect")
     # one run: its sign, never a verdict
-    assert verdict(0.03, None) == "not judged (1 run, no error bar): the return is higher with LHF"
+    assert (
+        verdict(0.03, None)
+        == "not judged (1 paired run, no error bar): the return is higher with LHF"
+    )
     assert verdict(-0.03, None).endswith("lower with LHF")
     assert verdict(float("nan"), None).startswith("undefined")
     # with a confidence interval, it decides: an effect beyond 1 std whose interval spans 0 is none
