@@ -28,6 +28,7 @@ from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
 from lhf_hf.reproduce.estimate import (
     REFERENCE,
     measured_stages,
+    plural,
     rate_table,
     rate_threads,
     reference_machines,
@@ -56,7 +57,10 @@ def merge_rates(old: list[dict], new: list[dict]) -> list[dict]:
         p["seconds_per_unit"] = (p["seconds_per_unit"] * w_old + r["seconds_per_unit"] * w_new) / (
             w_old + w_new
         )
-        p["overhead_s"] = (p["overhead_s"] * p["stages"] + r["overhead_s"] * r["stages"]) / n
+        # the start-up is optional in a table (0 when not measured, as ``find_rate`` reads it)
+        p["overhead_s"] = (
+            p.get("overhead_s", 0.0) * p["stages"] + r.get("overhead_s", 0.0) * r["stages"]
+        ) / n
         p["stages"] = n
         if by_units:
             p["units"] = w_old + w_new
@@ -77,6 +81,9 @@ def main() -> None:
         "units) instead of replacing it; a cache already counted there would count twice",
     )
     a = p.parse_args()
+    for w in a.work:  # an empty name would scan the current folder, a typo nothing at all
+        if not w.strip() or not Path(w).is_dir():
+            raise SystemExit(f"{w!r}: not a stage cache folder (lhf reproduce --work)")
     cpu, isa = cpu_model(), instruction_set()
     out = Path(a.out)
     # the table in --out is read (and refused when it is not one) before any work
@@ -127,9 +134,12 @@ def main() -> None:
     for r in rates:
         print(
             f"{r['key']:<50} {r['threads'] or 'any'} thread(s) {r['seconds_per_unit']:.3e} s/unit "
-            f"+ {r['overhead_s']:.1f} s start-up ({r['stages']} stage{'s' * (r['stages'] != 1)})"
+            f"+ {r['overhead_s']:.1f} s start-up ({plural(r['stages'], 'stage')})"
         )
-    print(f"{len(rates)} rates ({len(table)} from {len(records)} stages now) -> {a.out}")
+    print(
+        f"{plural(len(rates), 'rate')} ({len(table)} from {plural(len(records), 'stage')} now) "
+        f"-> {a.out}"
+    )
 
 
 if __name__ == "__main__":

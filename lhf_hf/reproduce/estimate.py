@@ -53,6 +53,8 @@ REFERENCE = Path(__file__).resolve().parent / "rates.json"
 #: A child process's imports before its stage starts (``--jobs`` > 1), which the child's own
 #: ``stage.json`` cannot see: 5-6 s per stage (BENCHMARKS.md, "Reproduce: stages side by side").
 CHILD_START_S = 5.0
+#: More torch threads than any machine here has: a stage record above it is damaged.
+MAX_THREADS = 4096
 
 
 @dataclass(frozen=True)
@@ -130,7 +132,13 @@ def measured_stages(work: str | Path) -> list[dict]:
 
 
 def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A finite JSON number (an integer too large for a float is not one: it would overflow)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
 
 
 def _cost_record(rec) -> bool:
@@ -142,7 +150,8 @@ def _cost_record(rec) -> bool:
         isinstance(cost.get("key"), str)
         and _number(cost.get("units")) and cost["units"] > 0
         and _number(rec.get("wall_s")) and rec["wall_s"] > 0
-        and isinstance(rec.get("threads", 0), int) and not isinstance(rec.get("threads"), bool)
+        and isinstance(t := rec.get("threads", 0), int) and not isinstance(t, bool)
+        and 0 <= t <= MAX_THREADS
         and all(isinstance(rec.get(f, ""), str) for f in ("kind", "cpu", "isa"))
     )  # fmt: skip
 
@@ -160,7 +169,7 @@ def work_seconds(kind: str, folder: Path) -> float | None:
             return float(runtimes[-1]) if runtimes else None
         if kind == "evaluate":
             return float(json.loads((folder / "eval" / "eval_results.json").read_text())["wall_s"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, OverflowError):
         return None
     return None
 
@@ -237,7 +246,7 @@ def check_machine(m, where: str = "machine") -> None:
     finite non-negative seconds (``_RATE_FIELDS``)."""
     if not isinstance(m, dict):
         raise ValueError(f"{where} is {type(m).__name__}, not an object")
-    for name in ("cpu", "isa"):
+    for name in ("cpu", "isa", "machine", "date", "command"):
         if name in m and not isinstance(m[name], str):
             raise ValueError(f"{where}: {name!r} must be a string, got {m[name]!r}")
     if not isinstance(m.get("rates"), list):
@@ -255,8 +264,8 @@ def check_machine(m, where: str = "machine") -> None:
             if isinstance(v, bool) or not isinstance(v, types):
                 raise ValueError(f"{at}: {name!r} is {v!r}")
             low = 1 if name == "stages" else 0
-            if not isinstance(v, str) and not (math.isfinite(v) and v >= low):
-                raise ValueError(f"{at}: {name!r} is {v!r}")
+            if not isinstance(v, str) and not (_number(v) and v >= low):
+                raise ValueError(f"{at}: {name!r} is {str(v)[:40]}")
 
 
 def same_machine(m: dict, cpu: str, isa: str) -> bool:
@@ -284,8 +293,8 @@ def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | No
     machines = sorted(
         machines,
         key=lambda m: (
-            not (m.get("cpu") == cpu and m.get("isa") == isa),
-            m.get("isa") != isa,
+            not same_machine(m, cpu, isa),  # this machine's (one without a set, older, too)
+            m.get("isa") != isa,  # the exact match before the table without a set
             m.get("cpu") != cpu,
         ),
     )
@@ -350,7 +359,7 @@ def estimate(
                 row["seconds"] = rate.seconds(s.cost.units)
                 if jobs > 1 and s.kind not in IN_PROCESS:
                     row["seconds"] += CHILD_START_S
-                row["basis"] = f"{rate.basis}, {rate.stages} stage{'s' * (rate.stages > 1)}"
+                row["basis"] = f"{rate.basis}, {plural(rate.stages, 'stage')}"
         rows.append(row)
     durations = {s.hash: (r["seconds"] or 0.0) for s, r in zip(stages, rows, strict=True)}
     done = {s.hash for s, r in zip(stages, rows, strict=True) if r["cached"]}
@@ -431,22 +440,28 @@ def render(est: dict, header: str) -> str:
     if est["missing"]:
         timed = est["to_run"] - est["unknown"]
         lines.append(
-            f"{est['to_run']} of {n} stages to run: at least {total}, for the {timed} with a rate; "
-            f"unknown for the other {est['unknown']} (marked '?', {len(est['missing'])} kind(s) of stage never "
+            f"{est['to_run']} of {plural(n, 'stage')} to run: at least {total}, for the {timed} "
+            f"with a rate; unknown for the other {est['unknown']} (marked '?', "
+            f"{plural(len(est['missing']), 'kind')} of stage never "
             "measured: a finished stage records its rate, so running the same env, objective and "
             "model preset once for a few steps (the specs in benchmarks/calibration/: "
             "gridworlds.yaml, planning.yaml, metaworld.yaml) completes the estimate)"
         )
     else:
-        lines.append(f"{est['to_run']} of {n} stages to run: {total}")
+        lines.append(f"{est['to_run']} of {plural(n, 'stage')} to run: {total}")
     return "\n".join(lines)
+
+
+def plural(n: int, word: str) -> str:
+    """``1 stage``, ``2 stages``."""
+    return f"{n} {word}{'s' * (n != 1)}"
 
 
 def duration(seconds: float) -> str:
     s = int(round(seconds))
     if s < 90:
         return f"{s} s"
-    if s < 5400:
+    if round(s / 60, 1) < 90:
         return f"{s / 60:.1f} min"
     if s < 2 * 86400:
         return f"{s / 3600:.1f} h"

@@ -62,6 +62,12 @@ def test_merge_weighs_rates_by_their_units_when_both_record_them():
     assert r["seconds_per_unit"] == pytest.approx((1.0 + 9.0) / 4) and "units" not in r
 
 
+def test_merge_reads_a_missing_start_up_as_zero():
+    old = [{k: v for k, v in _rate("filter", 0, 1.0, 0.0, 1).items() if k != "overhead_s"}]
+    (r,) = merge_rates(old, [_rate("filter", 0, 3.0, 0.8, 3)])
+    assert r["overhead_s"] == pytest.approx(0.6) and r["stages"] == 4
+
+
 def test_merge_keeps_thread_counts_apart():
     old = [_rate("evaluate|darkroom|ad|paper|no plan|window", 1, 3e-4, 0.4, 2)]
     new = [_rate("evaluate|darkroom|ad|paper|no plan|window", 2, 2e-4, 0.4, 2)]
@@ -100,6 +106,11 @@ def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
         '{"machines": [{"rates": [{"key": "k", "threads": "two", "seconds_per_unit": 1, "stages": 1}]}]}',
         '{"machines": [{"rates": [{"key": "k", "threads": 1, "seconds_per_unit": -1, "stages": 1}]}]}',
         '{"kind": "report", "cells": []}',  # another lhf output (results.json)
+        '{"rates": [{"key": "k", "threads": 1, "seconds_per_unit": 1, "stages": 1, "units": 1'
+        + "0" * 400
+        + "}]}",  # an integer too large for a float
+        '{"command": 5, "rates": []}',
+        '{"date": ["x"], "rates": []}',
     )
 
     def refusal(out, *extra):
@@ -121,6 +132,15 @@ def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
         assert "not a rates table" in refusal(out, "--merge"), text
         assert out.read_text() == text
     assert "not a file" in refusal(tmp_path)  # a folder as --out
+    # a WORK that is empty, a file or missing: refused (an empty name would scan this folder)
+    out.write_text("{}")
+    for work in ("", str(out), str(tmp_path / "missing")):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(sys, "argv", ["reference_rates.py", work, "--out", str(tmp_path / "n.json")])
+            with pytest.raises(SystemExit) as e:
+                _module.main()
+        assert "not a stage cache folder" in str(e.value.code)
+    assert not (tmp_path / "n.json").exists()
     # the command line: a one-line refusal, no traceback, the file unchanged
     out.write_text("{}")
     run = subprocess.run(

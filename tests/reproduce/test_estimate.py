@@ -132,6 +132,25 @@ def test_reference_of_a_like_machine_first_and_the_others_for_what_it_lacks(tmp_
     assert load_reference(path, cpu="Intel X", isa="avx2")["cpu"] == "AMD Y"
     assert load_reference(path, cpu="Intel X", isa="avx512")["cpu"] == "Intel X"
     assert load_reference(path, cpu="Intel X", isa="other")["cpu"] == "Intel X"
+    # this CPU's table without an instruction set (older) is this machine's: it ranks after the
+    # exact match and before another CPU of the same set, whatever the order in the file
+    no_isa = {**machine("Intel X", "?", {"train|a": 5.0})}
+    no_isa.pop("isa")
+    other_set = machine("Intel X", "avx2", {"train|a": 6.0})
+    same_set = machine("AMD Y", "avx512", {"train|a": 7.0})
+    for order in ([no_isa, other_set, same_set], [same_set, other_set, no_isa]):
+        path.write_text(json.dumps({"machines": order}))
+        assert (
+            load_reference(path, cpu="Intel X", isa="avx512")["rates"][0]["seconds_per_unit"] == 5.0
+        )
+    path.write_text(json.dumps({"machines": [no_isa, intel]}))
+    assert load_reference(path, cpu="Intel X", isa="avx512")["rates"][0]["seconds_per_unit"] == 1.0
+    # numbers too large for a float, or non-string names: refused, not an OverflowError
+    for bad in ({"rates": [{"key": "k", "threads": 1, "seconds_per_unit": 10**400, "stages": 1}]},
+                {"command": 5, "rates": []}, {"date": ["x"], "rates": []}):  # fmt: skip
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match="not a rates table"):
+            load_reference(path)
     zen4 = machine("AMD EPYC", "avx512", {"train|a": 1.0})
     zen2 = machine("AMD EPYC", "avx2", {"train|a": 2.0})
     path.write_text(json.dumps({"machines": [zen4, zen2]}))
@@ -172,7 +191,7 @@ def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path, mon
     assert "'reference' = lhf_hf/reproduce/rates.json (Ref); 'reference, CPU' = a rate" in text
     assert (
         "6 of 7 stages to run: at least ~3.5 min wall with --jobs 1, for the 3 with a rate; "
-        "unknown for the other 3 (marked '?', 2 kind(s) of stage never measured"
+        "unknown for the other 3 (marked '?', 2 kinds of stage never measured"
     ) in text
     assert "exceeds the" not in text
     many = render(estimate(stages, tmp_path, jobs=64, reference=ref), "head")
@@ -277,20 +296,34 @@ def test_malformed_stage_records_are_no_rates_and_other_machines_are_left_out(tm
         {"kind": "collect", "wall_s": "5", "cost": {"key": "k", "units": 1}},
         {"kind": "collect", "wall_s": 5.0, "cpu": 3, "cost": {"key": "k", "units": 1}},
         {"kind": "collect", "wall_s": float("nan"), "cost": {"key": "k", "units": 1}},
+        {"kind": "collect", "wall_s": 10**400, "cost": {"key": "k", "units": 1}},  # overflows
+        {"kind": "collect", "wall_s": 5.0, "cost": {"key": "k", "units": 10**400}},
+        {"kind": "collect", "wall_s": 5.0, "threads": -1, "cost": {"key": "k", "units": 1}},
+        {"kind": "collect", "wall_s": 5.0, "threads": 10**300, "cost": {"key": "k", "units": 1}},
     ]
     for i, rec in enumerate(damaged):
         d = tmp_path / "collect" / f"bad{i}"
         d.mkdir()
         (d / DONE_FILE).write_text(json.dumps(rec))
     assert [r["label"] for r in measured_stages(tmp_path)] == ["g"]
+    # a training whose own log holds a runtime too large for a float: its wall time is the rate
+    t = Stage("train", "t", {"i": "t"}, _noop, cost=Cost("train|x", 100))
+    _record(tmp_path, t, 20.0, 2, here)
+    (t.path(tmp_path) / "model").mkdir()
+    (t.path(tmp_path) / "model" / "training_log.json").write_text(
+        json.dumps([{"train_runtime": 10**400}])
+    )
+    assert {r["label"]: r["work_s"] for r in measured_stages(tmp_path)}["t"] == 20.0
     # the same model name with another instruction set is another machine: not this one's rate
     other = Stage("collect", "o", {"i": "o"}, _noop, cost=Cost("collect|x", 1000))
     _record(tmp_path, other, 500.0, 2, here)
     rec = json.loads((other.path(tmp_path) / DONE_FILE).read_text())
     (other.path(tmp_path) / DONE_FILE).write_text(json.dumps({**rec, "isa": isa + "-other"}))
-    est = estimate([Stage("collect", "n", {"i": "n"}, _noop, cost=Cost("collect|x", 1000))],
-                   tmp_path, reference={"cpu": "?", "rates": []})  # fmt: skip
+    n = Stage("collect", "n", {"i": "n"}, _noop, cost=Cost("collect|x", 1000))
+    est = estimate([n], tmp_path, reference={"cpu": "?", "rates": []})
     assert est["stages"][0]["seconds"] == pytest.approx(5.0)  # the good stage's rate alone
+    text = render(est, "head")
+    assert "1 of 1 stage to run" in text and "(here, 1 stage)" in text
     # a stage finished here records the instruction set
     from lhf_hf.reproduce.stages import StageRunner
 
@@ -304,6 +337,7 @@ def test_durations_read_at_a_glance():
 
     assert duration(45) == "45 s"
     assert duration(600) == "10.0 min"
+    assert duration(5399) == "1.5 h" and duration(5370) == "89.5 min"  # never "90.0 min"
     assert duration(7200) == "2.0 h"
     assert duration(47 * 3600) == "47.0 h"
     assert duration(3000 * 3600) == "125.0 days"  # the paper preset on 2 cores
