@@ -43,7 +43,7 @@ from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
-from .parallel import IN_PROCESS, can_start
+from .parallel import IN_PROCESS, can_start, start_order
 from .stages import DONE_FILE, Cost, Stage
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
@@ -381,12 +381,13 @@ def schedule(
     stages: Sequence[Stage], seconds: dict[str, float], done: set[str], jobs: int
 ) -> float:
     """Wall time of ``parallel.run_stages`` (or the sequential runner) on these durations: stages
-    start in plan order once their inputs are done, at most ``jobs`` at once, collections alone,
+    start in ``start_order`` (collections first) once their inputs are done, at most ``jobs`` at
+    once, collections alone,
     derivations and filters in the scheduling process (nothing starts while they run)."""
     if jobs == 1:
         return sum(seconds[s.hash] for s in stages if s.hash not in done)
     now, finished = 0.0, set(done)
-    pending = [s for s in stages if s.hash not in done]
+    pending = [s for s in start_order(stages) if s.hash not in done]
     running: list[tuple[float, str]] = []  # (end, hash) of the children
     while pending or running:
         for s in list(pending):

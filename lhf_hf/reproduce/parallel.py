@@ -6,6 +6,9 @@ throughput").  So with ``jobs > 1`` every training and evaluation runs in a chil
 (``python -m lhf_hf.reproduce.worker``) with one torch thread, as soon as the stages it reads are
 done.  Collections (which use every core through their own worker processes) run alone, and they,
 derivations and filters (a second of numpy) run in this process: a child costs ~5 s of imports.
+Collections start first (``start_order``): a collection waits for every running stage to end, so in
+plan order a later run's collection held back everything after it until the earlier runs' stages
+had ended (on 16 cores, 2 runs: the second run's trainings could not start beside the first's).
 Each child writes its output (progress bars included) to ``stage.log`` in its stage folder, and
 marks the stage done exactly as the in-process runner does, so the cache cannot tell the two apart.
 
@@ -44,6 +47,12 @@ def can_start(stage: Stage, running: int, jobs: int) -> bool:
     return running == 0 if stage.kind in WHOLE_MACHINE else running < jobs
 
 
+def start_order(stages: Sequence[Stage]) -> list[Stage]:
+    """The order in which ``run_stages`` (``jobs > 1``) considers the stages: the whole-machine
+    ones (collections, which read nothing) first, the rest in plan order."""
+    return sorted(stages, key=lambda s: s.kind not in WHOLE_MACHINE)
+
+
 def run_stages(
     stages: Sequence[Stage],
     runner: StageRunner,
@@ -67,7 +76,7 @@ def run_stages(
         missing = [i.label for i in s.inputs if i.hash not in known]
         if missing:
             raise ValueError(f"stage {s.label!r} reads {missing}, which are not in the plan")
-    pending = list(stages)
+    pending = start_order(stages)
     running: dict[subprocess.Popen, tuple[Stage, float, object]] = {}
     finished: set[str] = set()
     failed: list[str] = []

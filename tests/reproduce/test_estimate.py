@@ -50,6 +50,25 @@ def test_schedule_by_hand():
     assert schedule(stages, d, {s.hash for s in stages}, jobs=2) == 0
 
 
+def test_collections_start_first_so_a_later_run_is_not_held_back():
+    # two runs, each a collection (10 s) and two trainings (100 s), on 4 jobs: in plan order the
+    # second collection waited for the first run's trainings (0-10, 10-110, 110-120, 120-220)
+    runs = []
+    for r in range(2):
+        col = Stage("collect", f"collect {r}", {"r": r}, _noop, cost=Cost("collect|x", 1))
+        runs += [col] + [
+            Stage("train", f"train {r}{a}", {"r": r, "a": a}, _noop, (col,), Cost("train|x", 1))
+            for a in "bl"
+        ]
+    d = {s.hash: (10 if s.kind == "collect" else 100) for s in runs}
+    assert schedule(runs, d, set(), jobs=4) == 10 + 10 + 100
+    from lhf_hf.reproduce.parallel import start_order
+
+    assert [s.label for s in start_order(runs)] == [
+        "collect 0", "collect 1", "train 0b", "train 0l", "train 1b", "train 1l"
+    ]  # fmt: skip
+
+
 def _record(work, stage, wall, threads, cpu):
     out = stage.path(work)
     out.mkdir(parents=True)

@@ -79,6 +79,8 @@ def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path)
     for c in ("collect", "collect 2"):  # a collection uses every core: nothing beside it
         others = [v for k, v in t.items() if k != c]
         assert all(v["end"] <= t[c]["start"] or v["start"] >= t[c]["end"] for v in others)
+    # collections first: the second run's collection did not wait for the first run's stages
+    assert t["collect 2"]["end"] <= min(t[k]["start"] for k in ("train base", "train lhf"))
     # collections and filters here; trainings and evaluations in children with one thread
     assert {k for k, v in t.items() if v["pid"] == 0} == {"collect", "filter", "collect 2"}
     assert {v["threads"] for v in t.values() if v["pid"]} == {"1"}
