@@ -7,13 +7,9 @@
 #
 # The machine's own python3 and packages are used; locked versions it lacks (datasets, transformers,
 # gymnasium, SB3, ...) travel as wheels in .whl/ (pip download --no-deps of requirements.lock's pins
-# for that python) and are installed into /tmp/site first.  The collections run first, one after
-# the other in this process: `lhf reproduce --jobs N` starts a collection only when nothing else
-# runs (it uses the whole machine), so with N above one run's stages a later run's collection
-# would wait for every earlier run's trainings and evaluations.  The reproduction then gets what
-# is left of LIMIT seconds; on timeout the finished evaluations are still exported
-# (`--export-stages`, to `lhf reproduce --import-stages` elsewhere), and the stage logs, the
-# export and the report are packed into OUT.
+# for that python) and are installed into /tmp/site first.  The reproduction gets LIMIT seconds; on
+# timeout the finished evaluations are still exported (`--export-stages`, to `lhf reproduce
+# --import-stages` elsewhere), and the stage logs, the export and the report are packed into OUT.
 set -u
 SPEC=${SPEC:?a spec yaml}; PRESET=${PRESET:-cpu}; JOBS=${JOBS:-$(nproc)}; LIMIT=${LIMIT:-540}
 PY=${PY:-python3}; OUT=${OUT:?a folder for what comes back}; WORK=${WORK:-/tmp/lhf-work}
@@ -28,23 +24,7 @@ fi
 export PYTHONUNBUFFERED=1 HF_HUB_OFFLINE=1
 { $PY -c "import torch, transformers, datasets; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'transformers', transformers.__version__, 'datasets', datasets.__version__)"
   nproc; nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null; } 2>&1 | tee "$OUT/env.txt"
-$PY - "$SPEC" "$PRESET" "$WORK" <<'PYEOF' > "$OUT/collect.log" 2>&1 || { tail -30 "$OUT/collect.log"; exit 5; }
-import sys
-from pathlib import Path
-
-from lhf_hf.reproduce.experiment import load_experiment
-from lhf_hf.reproduce.reproduce import plan_stages
-from lhf_hf.reproduce.stages import StageRunner
-
-spec, preset, work = sys.argv[1:]
-stages, _ = plan_stages(load_experiment(spec, preset), Path(work))
-runner = StageRunner(work)
-for s in stages:
-    if s.kind == "collect":
-        runner.run(s)
-PYEOF
 left=$(( LIMIT - ($(date +%s) - t0) ))
-echo "[run_spec] collections done after $(( $(date +%s) - t0 )) s; reproduce gets ${left} s"
 timeout "$left" $PY -m lhf_hf reproduce "$SPEC" --preset "$PRESET" --jobs "$JOBS" --work "$WORK" \
   --out /tmp/lhf-report > "$OUT/reproduce.log" 2>&1
 echo "[run_spec] reproduce rc=$? after $(( $(date +%s) - t0 )) s"
