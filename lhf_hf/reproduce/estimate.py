@@ -382,8 +382,8 @@ def schedule(
 ) -> float:
     """Wall time of ``parallel.run_stages`` (or the sequential runner) on these durations: stages
     start in ``start_order`` (collections first) once their inputs are done, at most ``jobs`` at
-    once, collections alone,
-    derivations and filters in the scheduling process (nothing starts while they run)."""
+    once, collections alone, derivations and filters in the scheduling process (nothing starts
+    while they run)."""
     if jobs == 1:
         return sum(seconds[s.hash] for s in stages if s.hash not in done)
     now, finished = 0.0, set(done)
