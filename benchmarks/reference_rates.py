@@ -117,6 +117,9 @@ def main() -> None:
             date = joined if joined.endswith(date) else f"{joined}, merged {date}"
         if len(olds) > 1:
             print(f"{len(olds)} tables of this machine in {out}: pooled into one")
+    elif olds:
+        n_old = sum(len(m["rates"]) for m in olds)
+        print(f"replacing this machine's {plural(n_old, 'rate')} in {out} (--merge adds to them)")
     mine = {
         "cpu": cpu,
         "isa": isa,
@@ -134,7 +137,7 @@ def main() -> None:
     for r in rates:
         print(
             f"{r['key']:<50} {r['threads'] or 'any'} thread(s) {r['seconds_per_unit']:.3e} s/unit "
-            f"+ {r['overhead_s']:.1f} s start-up ({plural(r['stages'], 'stage')})"
+            f"+ {r.get('overhead_s', 0.0):.1f} s start-up ({plural(r['stages'], 'stage')})"
         )
     print(
         f"{plural(len(rates), 'rate')} ({len(table)} from {plural(len(records), 'stage')} now) "
