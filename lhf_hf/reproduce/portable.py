@@ -32,7 +32,7 @@ from pathlib import Path
 from lhf_hf.utils.io import sha256_file, write_json_atomic
 from lhf_hf.utils.outputs import check_manifest, output_folder
 
-from .stages import DONE_FILE, LOG_FILE, RECORD_FILE, Stage, config_hash
+from .stages import DONE_FILE, LOG_FILE, RECORD_FILE, Stage, config_hash, done_record
 
 #: Kinds of stage carried whole: small outputs that cost minutes to hours to make again.
 PORTABLE = ("evaluate",)
@@ -237,7 +237,7 @@ def import_stages(src: str | Path, work: str | Path, plan: list[Stage], dry: boo
         if e["hash"] not in planned:
             continue  # another experiment's, preset's or version's: nothing here reads it
         target = work / e["kind"] / e["hash"][:12]
-        if (target / DONE_FILE).exists():
+        if done_record(target) is not None:
             counts["present"] += 1
         elif e["kind"] in PORTABLE:
             origin = {

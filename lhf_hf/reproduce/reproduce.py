@@ -35,7 +35,7 @@ from .parallel import check_jobs, run_stages, worker_command
 from .portable import export_stages, import_stages
 from .report import default_out as report_folder
 from .report import render_report
-from .stages import DONE_FILE, Stage, StageRunner, needed_stages, stage_wall
+from .stages import Stage, StageRunner, done_record, needed_stages, stage_wall
 
 
 def _arms(exp: Experiment) -> list[str]:
@@ -413,10 +413,7 @@ def _selection_summary(folder: Path) -> dict:
 
 def _imported(folder: Path) -> dict | None:
     """Where a finished stage's output was imported from (None: made here)."""
-    try:
-        return json.loads((folder / DONE_FILE).read_text()).get("imported")
-    except (OSError, ValueError):
-        return None
+    return (done_record(folder) or {}).get("imported")
 
 
 def load_summary(out: str | Path) -> dict:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -58,7 +59,24 @@ class Stage:
         return Path(work) / self.kind / self.hash[:12]
 
     def done(self, work: Path) -> bool:
-        return (self.path(work) / DONE_FILE).exists()
+        found = done_record(self.path(work))
+        return found is not None and found["kind"] == self.kind
+
+
+def done_record(folder: Path) -> dict | None:
+    """A stage folder's ``stage.json`` when it is one: a JSON object naming its ``kind`` with a
+    finite ``wall_s`` >= 0 (every version of ``StageRunner`` wrote both).  Anything else (a hand
+    edit, ``[]``, a truncated copy) is None: the stage is not done and runs again (its function
+    resumes from its own markers), rather than a report reading output that may not be there."""
+    try:
+        found = json.loads((Path(folder) / DONE_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(found, dict) or not isinstance(found.get("kind"), str):
+        return None
+    wall = found.get("wall_s")
+    ok = isinstance(wall, int | float) and not isinstance(wall, bool) and math.isfinite(wall)
+    return found if ok and wall >= 0 else None
 
 
 class StageRunner:
@@ -79,6 +97,8 @@ class StageRunner:
             self.echo(f"{head}: cached ({out})")
             self.log.append({"stage": stage.label, "path": str(out), "cached": True})
             return out
+        if (out / DONE_FILE).exists():  # written by hand or cut short: not this stage's mark
+            self.echo(f"{head}: {out / DONE_FILE} is no finished stage's record: running it again")
         self.echo(f"{head} ...")
         # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
         # covers only part of its work and is no rate for later estimates.

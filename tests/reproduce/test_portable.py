@@ -191,6 +191,11 @@ def test_imports_copy_only_this_plans_stages_once_and_say_what_matched(exported,
     imported = [s for s in plan if s.kind == "evaluate" and s.done(work)]
     origin = json.loads((imported[0].path(work) / DONE_FILE).read_text())["imported"]
     assert origin["from"] == str((root / "carried").resolve()) and origin["versions"]
+    # an evaluation whose mark was edited into no record is not done: the import replaces it
+    (imported[0].path(work) / DONE_FILE).write_text("[]")
+    assert not imported[0].done(work)
+    fixed = import_stages(root / "carried", work, plan)
+    assert (fixed["imported"], fixed["present"]) == (1, 5) and imported[0].done(work)
     # another spec (one setting differs): nothing of the export is in its plan, nothing copied
     other = json.loads(json.dumps(TINY))
     other["presets"]["quick"]["evaluate"]["episodes"] = 3
