@@ -92,3 +92,30 @@ def test_config_errors(kwargs, match):
 def test_default_chunk_bounds_memory():
     cfg = CollectConfig("dark-key-to-door", histories=100, steps=1000, collector="batched")
     assert cfg.tasks_per_chunk == 500  # 50M transitions per chunk
+
+
+@pytest.mark.parametrize("backend", ["torch", "kernel"])
+def test_the_thread_count_does_not_change_the_data(tmp_path, backend):
+    # LAPACK's QR (the orthogonal initialisation) rounded differently at 1 and 2 threads, and PPO
+    # turned that last bit into other histories: the data depended on the machine's core count.
+    import torch
+
+    if backend == "kernel":
+        from lhf_hf.collection import native
+
+        try:
+            native.load(64)
+        except native.KernelUnavailable as e:
+            pytest.skip(f"no C++ kernel here: {e}")
+    cfg = {**CFG, "tasks": "0,1,2,3", "histories": 20, "steps": 500, "ppo_backend": backend}
+    old = torch.get_num_threads()
+    found = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            out = collect(CollectConfig(**cfg, workers=1), tmp_path / f"t{threads}", progress=False)
+            found.append(out.fingerprint)
+            assert torch.get_num_threads() == threads  # the initialisation restores it
+    finally:
+        torch.set_num_threads(old)
+    assert found[0] == found[1]

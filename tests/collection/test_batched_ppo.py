@@ -230,3 +230,18 @@ def test_unknown_gradients_mode_is_an_error():
         ppo_update(
             policy, make_optimizer(policy, 3e-4), random_rollout(1, 10), 1, 5, gradients="jax"
         )
+
+
+def test_initial_weights_do_not_depend_on_the_thread_count():
+    old = torch.get_num_threads()
+    params = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            policy = StackedPolicy(6, 2, 5, torch.Generator().manual_seed(3))
+            params.append([p.detach().clone() for p in policy.stacked_params()])
+            assert torch.get_num_threads() == threads
+    finally:
+        torch.set_num_threads(old)
+    for a, b in zip(*params, strict=True):
+        assert torch.equal(a, b)  # bit for bit
