@@ -68,6 +68,21 @@ def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
             load_experiment("darkroom-main", "quick", runs=runs)
 
 
+@pytest.mark.parametrize("preset", ["quick", "cpu", "paper"])
+def test_the_independent_arm_is_the_main_table_but_its_collection(preset):
+    # Read beside darkroom-main, the two arms may differ in how the histories were made and in
+    # nothing else (an evaluation with 1 rollout and ungated planning once slipped in here).
+    main = load_experiment("darkroom-main", preset)
+    arm = load_experiment("darkroom-main-independent", preset)
+    for name in ("envs", "objectives", "runs", "filter", "train", "evaluate", "paper"):
+        assert getattr(arm, name) == getattr(main, name), name
+    assert arm.collect == {**main.collect, "protocol": "independent"}
+    assert main.collect["protocol"] == "paper"
+    if preset == "cpu":  # the other Darkroom tables evaluate as the main one does
+        for other in ("darkroom-noisy", "darkroom-half", "darkroom-lightweight"):
+            assert load_experiment(other, preset).evaluate == main.evaluate, other
+
+
 def test_spec_errors(tmp_path):
     with pytest.raises(KeyError, match="unknown experiment 'nope'"):
         load_experiment("nope")
