@@ -75,6 +75,15 @@ def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
     return out
 
 
+def mean_curves(paths: list[str]) -> dict[str, np.ndarray]:
+    """Each backbone's per-run mean learning curves, (runs, episodes), of the evaluations at
+    ``paths`` in the given order (a sweep's figure draws several arms' curves on one panel)."""
+    return {
+        backbone: np.array([r["mean_curve"] for r in runs])
+        for backbone, runs in _group(paths, "evaluation").items()
+    }
+
+
 def _protocol(r: dict) -> str:
     """The context protocol of a run: ``cache`` and ``recompute`` compute the same function (tested
     equal), ``window`` another one (the reference's re-encoded window)."""

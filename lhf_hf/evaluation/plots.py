@@ -62,3 +62,30 @@ def plot_comparison(rows: dict[str, dict], path: Path, title: str) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     save_figure_atomic(fig, path)
+
+
+def plot_sweep(panels: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
+    """panels: backbone -> {arm label: (runs, E) per-run mean curves}, the baseline's under
+    "baseline".  Like the paper's sensitivity figure (fig_sensitivity): one panel per backbone, the
+    baseline dashed, one solid line per swept value, mean over runs with a std band."""
+    plt = _plt()
+    n = len(panels)
+    fig, axes = plt.subplots(1, n, figsize=(4.8 * n, 3.8), dpi=120, squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (backbone, arms) in zip(axes[0], panels.items(), strict=True):
+        values = [a for a in arms if a != "baseline"]
+        for label, runs in [("baseline", arms["baseline"]), *((a, arms[a]) for a in values)]:
+            base = label == "baseline"
+            c = "black" if base else colors[values.index(label) % len(colors)]
+            x = np.arange(1, runs.shape[1] + 1)
+            m, s = runs.mean(0), runs.std(0)
+            ax.plot(x, m, linestyle="--" if base else "-", color=c, label=label)
+            ax.fill_between(x, m - s, m + s, color=c, alpha=0.08 if base else 0.12, linewidth=0)
+        ax.set_title(backbone, fontsize=10)
+        ax.set_xlabel("test episode")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    axes[0][0].set_ylabel("return")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    save_figure_atomic(fig, path)

@@ -9,6 +9,9 @@ import yaml
 
 from .experiment import Experiment
 
+#: A sweep's figure per env: every value's LHF curves beside the baseline, one panel per backbone.
+SWEEP_FIGURE = "sweep.png"
+
 
 def verdict(
     e: float,
@@ -214,6 +217,9 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
             )
     lines += _selection_lines(summary.get("selections") or [])
     lines += ["", "## Learning curves on the unseen tasks", ""]
+    for env in dict.fromkeys(cell["env_id"] for cell in cells):  # a sweep's figure first
+        if (out / env / SWEEP_FIGURE).exists():
+            lines += [f"![{env}, every swept value]({env}/{SWEEP_FIGURE})", ""]
     for cell in cells:
         rel = Path(cell["env_id"]) / cell["arm"] / "compare.png"
         if (out / rel).exists():

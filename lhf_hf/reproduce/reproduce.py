@@ -19,7 +19,8 @@ from pathlib import Path
 from lhf_hf.collection import collect
 from lhf_hf.configs import CollectConfig
 from lhf_hf.evaluation import evaluate
-from lhf_hf.evaluation.compare import compare
+from lhf_hf.evaluation.compare import compare, mean_curves
+from lhf_hf.evaluation.plots import plot_sweep
 from lhf_hf.filtering.run import run_filter
 from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.derive import derive_half
@@ -33,8 +34,8 @@ from .estimate import collect_cost, data_cost, estimate, eval_cost, render, trai
 from .experiment import Experiment, load_experiment, spec_path
 from .parallel import check_jobs, run_stages, worker_command
 from .portable import export_stages, import_stages
+from .report import SWEEP_FIGURE, render_report
 from .report import default_out as report_folder
-from .report import render_report
 from .stages import Stage, StageRunner, done_record, needed_stages, stage_wall
 
 
@@ -361,6 +362,8 @@ def _run(
             ]
             res = compare(base, filt, out=out / env / arm, overwrite=True)
             cells.append({"env_id": env, "arm": arm, **res})
+        if len(_arms(exp)) > 1:  # a sweep: every value on one panel per backbone, as the paper
+            _plot_sweep(exp, env, evals, work, out / env / SWEEP_FIGURE)
     selections = [
         {"env_id": env, "arm": arm, "run": run, **_selection_summary(stage.path(work))}
         for env in exp.envs
@@ -390,6 +393,17 @@ def _run(
     write_text_atomic(render_report(exp, cells, summary, out), report)
     echo(f"[lhf reproduce] report: {report}  ({wall} s)")
     return report
+
+
+def _plot_sweep(exp: Experiment, env: str, evals: dict, work: Path, path: Path) -> None:
+    """One panel per backbone: the baseline and every swept value's LHF curves (fig_sensitivity)."""
+    panels: dict[str, dict] = {}
+    for arm in ["baseline", *_arms(exp)]:
+        paths = [str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, arm, o)]]
+        for backbone, runs in mean_curves(paths).items():
+            panels.setdefault(backbone, {})[arm] = runs  # (runs, episodes)
+    sweep = exp.filter["sweep"]["key"]
+    plot_sweep(panels, path, f"{env}: baseline (dashed) vs LHF per {sweep} (solid)")
 
 
 #: What the report says of each selection (``Selection.summary``): histories kept and rejected and

@@ -335,6 +335,7 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
     assert (
         "darkroom/lhf/compare.png" in text and (out / "darkroom" / "lhf" / "compare.png").exists()
     )
+    assert not (out / "darkroom" / "sweep.png").exists()  # one LHF arm: no sweep figure
     assert "## Where LHF helps" in text and "Budget" in text
     # what each run's selection kept: the source's mean return is the kept and rejected groups'
     # means weighted by their sizes
@@ -411,6 +412,9 @@ def test_half_histories_and_sweep_arms(tmp_path):
     assert sorted(c["arm"] for c in summary["cells"]) == ["lam=0", "lam=1000"]
     text = report.read_text()
     assert "| darkroom (lam=0) |" in text and "| darkroom (lam=1000) |" in text
+    # the sweep's figure: every value on one panel per backbone, linked first in the report
+    assert (out / "darkroom" / "sweep.png").stat().st_size > 0
+    assert text.index("(darkroom/sweep.png)") < text.index("(darkroom/lam=0/compare.png)")
 
 
 def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys):
