@@ -121,6 +121,33 @@ def _selection_lines(selections: list[dict]) -> list[str]:
     return lines
 
 
+def _other_data_lines(other: list[dict]) -> list[str]:
+    """A warning: models trained on another draw of a collection than the one the selection
+    summary above describes (``reproduce._other_data``)."""
+    if not other:
+        return []
+    machines = sorted(
+        {
+            "{cpu}, {isa}".format(**{"cpu": "?", "isa": "?", **(o.get("here_machine") or {})})
+            for o in other
+        }
+    )
+    lines = [
+        "",
+        f"**Warning**: {len(other)} evaluation(s) are of models trained on another draw of their "
+        "collection than the one in this work folder (same config, made again on another "
+        "machine: datasets differ across instruction sets, and those collected before the "
+        "initialisation ran on one thread across core counts too). The selection summary above "
+        f"describes this machine's draw "
+        f"({', '.join(machines)}), not the data those models trained on:",
+        "",
+    ]
+    lines += [
+        f"- {o['stage']}: trained on {o['trained_on'][:12]}, here {o['here'][:12]}" for o in other
+    ]
+    return lines
+
+
 def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
     cols = _columns(exp)
     lines = [
@@ -216,6 +243,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
                 f"{r['lhf_final']:.2f} | {r['runs_baseline']} |"
             )
     lines += _selection_lines(summary.get("selections") or [])
+    lines += _other_data_lines(summary.get("other_data") or [])
     lines += ["", "## Learning curves on the unseen tasks", ""]
     for env in dict.fromkeys(cell["env_id"] for cell in cells):  # a sweep's figure first
         if (out / env / SWEEP_FIGURE).exists():

@@ -20,6 +20,7 @@ from lhf_hf.collection import collect
 from lhf_hf.configs import CollectConfig
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare, mean_curves
+from lhf_hf.evaluation.evaluate import RESULTS_FILE as EVAL_RESULTS
 from lhf_hf.evaluation.plots import plot_sweep
 from lhf_hf.filtering.run import run_filter
 from lhf_hf.filtering.select import CONFIG_FILE
@@ -375,6 +376,7 @@ def _run(
         "experiment": exp.to_dict(),
         "cells": cells,
         "selections": selections,
+        "other_data": _other_data(evals, work),
         "stages": runner.log,
         "wall_s": wall,
         # what the whole table cost, whichever call ran each stage (a cached stage's own record)
@@ -423,6 +425,39 @@ def _selection_summary(folder: Path) -> dict:
     """A finished filter stage's selection summary (the fields above; absent ones are None)."""
     found = json.loads((folder / "selection" / CONFIG_FILE).read_text()).get("summary") or {}
     return {k: found.get(k) for k in SELECTION_FIELDS}
+
+
+def _other_data(evals: dict, work: Path) -> list[dict]:
+    """The evaluations whose model trained on another collection than the one under ``work``
+    that its stage reads: the same config, made again on a machine of another instruction set (a
+    dataset is the same at any thread count, not across instruction sets; docs/histories.md).
+    That happens when evaluations are imported (``--import-stages``) and the collection is
+    re-made here for the report: its selection summary then describes this machine's draw, not
+    the data the compared models trained on.  Each: the stage, both fingerprints, the machine."""
+    found = []
+    for key, stages in evals.items():
+        if key[0] == "selection":
+            continue
+        for ev in stages:
+            (tr,) = ev.inputs
+            data = next(s for s in tr.inputs if s.kind in ("collect", "derive"))
+            try:
+                model = json.loads((ev.path(work) / "eval" / EVAL_RESULTS).read_text())["model"]
+                used = model["dataset"]["fingerprint"]
+                info = json.loads((data.path(work) / "data" / "meta" / "info.json").read_text())
+                here = info["lhf"]["fingerprint"]
+            except (OSError, ValueError, KeyError, TypeError):
+                continue  # an older evaluation or dataset without the record: nothing to compare
+            if used != here:
+                found.append(
+                    {
+                        "stage": ev.label,
+                        "trained_on": used,
+                        "here": here,
+                        "here_machine": info["lhf"].get("machine"),
+                    }
+                )
+    return found
 
 
 def _imported(folder: Path) -> dict | None:

@@ -99,6 +99,22 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     # the recollected run 0 selects what A's did (one seed reaches every RNG)
     sel_a = json.loads((tmp_path / "out_a" / "results.json").read_text())["selections"][0]
     assert summary["selections"][0] == sel_a
+    assert summary["other_data"] == [] and "**Warning**" not in report.read_text()
+    # ... which a machine of another instruction set would not: the imported models' dataset
+    # (here edited into another draw) differs from the collection made here, and the report says
+    # its selection summary is not of the data those models trained on
+    for ev in run0_evals:
+        path = ev.path(work_b) / "eval" / "eval_results.json"
+        found = json.loads(path.read_text())
+        found["model"]["dataset"]["fingerprint"] = "f" * 64
+        path.write_text(json.dumps(found))
+    report = reproduce(spec, "quick", 2, tmp_path / "out_c", work_b, echo=lambda s: None)
+    other = json.loads((tmp_path / "out_c" / "results.json").read_text())["other_data"]
+    assert sorted(o["stage"] for o in other) == sorted(ev.label for ev in run0_evals)
+    assert {o["trained_on"] for o in other} == {"f" * 64} and other[0]["here_machine"]["isa"]
+    text = report.read_text()
+    assert "**Warning**: 2 evaluation(s) are of models trained on another draw" in text
+    assert f"- {run0_evals[0].label}: trained on ffffffffffff, here " in text
 
 
 @pytest.fixture(scope="module")
