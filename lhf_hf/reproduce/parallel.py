@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .stages import DONE_FILE, LOG_FILE, Stage, StageRunner
+from .stages import LOG_FILE, Stage, StageRunner
 
 #: Kinds of stage that use every core by themselves (collection: its own worker processes).
 WHOLE_MACHINE = {"collect"}
@@ -138,7 +138,7 @@ def run_stages(
                 stage, t0, log = running.pop(child)
                 log.close()
                 out = stage.path(work)
-                if child.returncode == 0 and (out / DONE_FILE).exists():
+                if child.returncode == 0 and stage.done(work):
                     wall = round(time.perf_counter() - t0, 1)
                     finished.add(stage.hash)
                     runner.echo(f"[done] {stage.kind:<8} {stage.label} in {wall} s")

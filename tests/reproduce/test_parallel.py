@@ -16,7 +16,7 @@ from lhf_hf.reproduce.stages import DONE_FILE, Stage, StageRunner
 # A stand-in stage process: records when it ran, then marks its stage done (or fails).
 CHILD = """
 import json, os, sys, time
-out, fail = sys.argv[1], sys.argv[2] == "1"
+out, fail, kind = sys.argv[1], sys.argv[2] == "1", sys.argv[3]
 t0 = time.time()
 time.sleep(0.3)
 print("working in", out, "threads", os.environ.get("OMP_NUM_THREADS"))
@@ -25,7 +25,7 @@ if fail:
 json.dump({"start": t0, "end": time.time(), "threads": os.environ.get("OMP_NUM_THREADS"),
            "pid": os.getpid()},
           open(os.path.join(out, "times.json"), "w"))
-json.dump({}, open(os.path.join(out, "stage.json"), "w"))
+json.dump({"kind": kind, "wall_s": 0.3}, open(os.path.join(out, "stage.json"), "w"))
 """
 
 
@@ -55,7 +55,9 @@ def _graph(fail_filter: bool = False):
 
 
 def _command(work: Path, failing: set[str] = frozenset()):
-    return lambda s: [sys.executable, "-c", CHILD, str(s.path(work)), str(int(s.label in failing))]
+    return lambda s: [
+        sys.executable, "-c", CHILD, str(s.path(work)), str(int(s.label in failing)), s.kind
+    ]  # fmt: skip
 
 
 def _times(stages, work):

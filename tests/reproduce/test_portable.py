@@ -270,7 +270,8 @@ def test_export_refuses_what_it_would_lose_and_the_cli_checks_its_flags(exported
 
 
 def _noop(out: Path) -> None:
-    (out / DONE_FILE).write_text("{}")
+    """A finished stage's mark (its folder is WORK/<kind>/<hash12>)."""
+    (out / DONE_FILE).write_text(json.dumps({"kind": out.parent.name, "wall_s": 0.0}))
 
 
 def test_needed_stages_leave_out_what_only_done_stages_read(tmp_path):
