@@ -229,7 +229,9 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
         "## Absolute returns",
         "",
-        "Mean over runs of the whole-curve mean and of the last 10% of the episodes (end of the curve).",
+        "Mean over runs of the whole-curve mean and of the last 10% of the episodes (end of the "
+        "curve). The paper publishes no returns in numbers (only E in its tables and the curves "
+        "of its figures), so there is none to set beside these.",
         "",
         "| env | backbone | baseline mean | LHF mean | baseline end | LHF end | runs |",
         "|---|---|---|---|---|---|---|",
