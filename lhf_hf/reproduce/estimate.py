@@ -446,7 +446,8 @@ def render(est: dict, header: str) -> str:
             f"{plural(len(est['missing']), 'kind')} of stage never "
             "measured: a finished stage records its rate, so running the same env, objective and "
             "model preset once for a few steps (the specs in benchmarks/calibration/: "
-            "gridworlds.yaml, planning.yaml, metaworld.yaml) completes the estimate)"
+            "gridworlds.yaml, planning.yaml, planning-key-to-door.yaml, lightweight.yaml, "
+            "metaworld.yaml) completes the estimate)"
         )
     else:
         lines.append(f"{est['to_run']} of {plural(n, 'stage')} to run: {total}")

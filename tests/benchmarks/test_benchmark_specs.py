@@ -30,3 +30,15 @@ def test_the_gpu_dicp_spec_is_the_cpu_recipe_trained_three_times_longer(tmp_path
     # the rest of the recipe is the cpu preset's: same data, model, batch, learning rate
     assert {**t_long, "max_steps": 0} == {**t_cpu, "max_steps": 0}
     assert long.runs == 2 and long.objectives == cpu.objectives
+
+
+def test_the_key_to_door_planning_spec_is_a_cell_of_the_planning_spec(tmp_path):
+    # the same stages (hashes): a later run of planning.yaml finds them cached
+    one = plan_stages(
+        load_experiment(str(ROOT / "calibration" / "planning-key-to-door.yaml"), "cpu"), tmp_path
+    )[0]
+    all_ = plan_stages(
+        load_experiment(str(ROOT / "calibration" / "planning.yaml"), "cpu"), tmp_path
+    )[0]
+    k2d = [s.hash for s in all_ if s.label.startswith("dark-key-to-door")]
+    assert [s.hash for s in one] == k2d and len(k2d) == 6
