@@ -79,7 +79,10 @@ def plot_sweep(panels: dict[str, dict[str, np.ndarray]], path: Path, title: str)
             c = "black" if base else colors[values.index(label) % len(colors)]
             x = np.arange(1, runs.shape[1] + 1)
             m, s = runs.mean(0), runs.std(0)
-            ax.plot(x, m, linestyle="--" if base else "-", color=c, label=label)
+            # the baseline on top: where an arm's curve is level with it, it stays visible
+            ax.plot(
+                x, m, linestyle="--" if base else "-", color=c, label=label, zorder=3 if base else 2
+            )
             ax.fill_between(x, m - s, m + s, color=c, alpha=0.08 if base else 0.12, linewidth=0)
         ax.set_title(backbone, fontsize=10)
         ax.set_xlabel("test episode")

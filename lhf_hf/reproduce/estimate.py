@@ -44,7 +44,7 @@ from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
 from .parallel import IN_PROCESS, can_start, start_order
-from .stages import DONE_FILE, Cost, Stage
+from .stages import DONE_FILE, Cost, Stage, done_record
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
 #: side by side (190-198 s vs 124-126 s, BENCHMARKS.md "Reproduce: stages side by side", Intel).
@@ -122,8 +122,8 @@ def measured_stages(work: str | Path) -> list[dict]:
             rec = json.loads(path.read_text())
         except (OSError, ValueError):
             continue  # a damaged mark: that stage will run again anyway
-        if not _cost_record(rec):
-            continue
+        if not _cost_record(rec) or done_record(path.parent) is None:
+            continue  # no cost, or not this folder's stage (another's record copied in, edited)
         work_s = work_seconds(rec.get("kind", ""), path.parent)
         usable = work_s is not None and math.isfinite(work_s) and work_s > 0
         rec["work_s"] = min(work_s, rec["wall_s"]) if usable else rec["wall_s"]

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .stages import LOG_FILE, Stage, StageRunner
+from .stages import DONE_FILE, LOG_FILE, NO_RECORD, Stage, StageRunner
 
 #: Kinds of stage that use every core by themselves (collection: its own worker processes).
 WHOLE_MACHINE = {"collect"}
@@ -122,11 +122,10 @@ def run_stages(
                     runner.echo(f"[failed] {stage.kind:<8} {stage.label}: could not start: {exc}")
                     break
                 runner.done += 1
-                runner.echo(
-                    f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label} "
-                    f"... (process {child.pid}, 1 thread, log "
-                    f"{out / LOG_FILE})"
-                )
+                head = f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label}"
+                if (out / DONE_FILE).exists():  # what the child's runner says, said here too
+                    runner.echo(f"{head}: {out / DONE_FILE} {NO_RECORD}")
+                runner.echo(f"{head} ... (process {child.pid}, 1 thread, log {out / LOG_FILE})")
                 running[child] = (stage, time.perf_counter(), log)
             if not running:
                 if pending and not failed:

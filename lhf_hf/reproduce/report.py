@@ -134,12 +134,11 @@ def _other_data_lines(other: list[dict]) -> list[str]:
     )
     lines = [
         "",
-        f"**Warning**: {len(other)} evaluation(s) are of models trained on another draw of their "
-        "collection than the one in this work folder (same config, made again on another "
-        "machine: datasets differ across instruction sets, and those collected before the "
-        "initialisation ran on one thread across core counts too). The selection summary above "
-        f"describes this machine's draw "
-        f"({', '.join(machines)}), not the data those models trained on:",
+        f"**Warning**: {len(other)} evaluation(s) are of models trained on other data than the "
+        "collection in this work folder, made from the same config (typically imported "
+        "evaluations: a collection made again on a CPU of another instruction set is another "
+        "draw, docs/histories.md). The selection summary above describes the collection here "
+        f"({', '.join(machines)}), not the data these models trained on:",
         "",
     ]
     lines += [
@@ -262,7 +261,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
         f"{len(summary['stages'])} stages ({cached} from cache"
         + (
-            f"; {summary['left_out']} left out: what reads them was imported"
+            f"; {summary['left_out']} left out: not done, but what reads them is"
             if summary.get("left_out")
             else ""
         )

@@ -346,8 +346,9 @@ def _run(
     runner = StageRunner(work, total=len(todo), echo=echo)
     if len(todo) < len(stages):
         echo(
-            f"[lhf reproduce] {len(stages) - len(todo)} stage(s) left out: what reads them is done "
-            "(imported evaluations)"
+            f"[lhf reproduce] {len(stages) - len(todo)} stage(s) left out: not done, but what "
+            "reads them is (imported evaluations, or a stage whose mark is no record while all "
+            "after it are finished)"
         )
     run_stages(todo, runner, jobs, command)
     cells = []
@@ -448,13 +449,17 @@ def _other_data(evals: dict, work: Path) -> list[dict]:
                 here = info["lhf"]["fingerprint"]
             except (OSError, ValueError, KeyError, TypeError):
                 continue  # an older evaluation or dataset without the record: nothing to compare
+            if not (isinstance(used, str) and isinstance(here, str)):
+                continue  # no fingerprint recorded (null, edited): nothing to compare
             if used != here:
+                machine = info["lhf"].get("machine")
+                machine = machine if isinstance(machine, dict) else {}
                 found.append(
                     {
                         "stage": ev.label,
                         "trained_on": used,
                         "here": here,
-                        "here_machine": info["lhf"].get("machine"),
+                        "here_machine": {k: machine.get(k) for k in ("cpu", "isa", "threads")},
                     }
                 )
     return found

@@ -28,6 +28,8 @@ LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
 #: A finished stage's ``stage.json`` imported without its output (``portable.py``): what it cost,
 #: for the report's stage time; the stage itself is not done here.
 RECORD_FILE = "stage.record.json"
+#: Said of a ``stage.json`` that is no finished stage's record (``done_record``).
+NO_RECORD = "is no finished stage's record: running it again"
 
 
 def config_hash(config: dict) -> str:
@@ -59,24 +61,32 @@ class Stage:
         return Path(work) / self.kind / self.hash[:12]
 
     def done(self, work: Path) -> bool:
-        found = done_record(self.path(work))
-        return found is not None and found["kind"] == self.kind
+        return done_record(self.path(work)) is not None
+
+
+def finite_seconds(v) -> bool:
+    """A JSON number of seconds: finite and >= 0 (not a bool, a string, NaN or infinity)."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
 
 
 def done_record(folder: Path) -> dict | None:
-    """A stage folder's ``stage.json`` when it is one: a JSON object naming its ``kind`` with a
-    finite ``wall_s`` >= 0 (every version of ``StageRunner`` wrote both).  Anything else (a hand
-    edit, ``[]``, a truncated copy) is None: the stage is not done and runs again (its function
-    resumes from its own markers), rather than a report reading output that may not be there."""
+    """A stage folder's ``stage.json`` when it is that stage's record: a JSON object with a finite
+    ``wall_s`` >= 0 whose ``kind`` and ``config`` hash to the folder's own name
+    (``WORK/<kind>/<hash12>``; every version of ``StageRunner`` wrote all three).  Anything else (a
+    hand edit, ``[]``, a truncated copy, another stage's record) is None: the stage is not done
+    and runs again (its function resumes from its own markers), rather than a report reading
+    output that may not be there."""
+    folder = Path(folder)
     try:
-        found = json.loads((Path(folder) / DONE_FILE).read_text())
+        found = json.loads((folder / DONE_FILE).read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(found, dict) or not isinstance(found.get("kind"), str):
+    if not isinstance(found, dict) or not finite_seconds(found.get("wall_s")):
         return None
-    wall = found.get("wall_s")
-    ok = isinstance(wall, int | float) and not isinstance(wall, bool) and math.isfinite(wall)
-    return found if ok and wall >= 0 else None
+    kind, config = found.get("kind"), found.get("config")
+    if not isinstance(kind, str) or not isinstance(config, dict) or kind != folder.parent.name:
+        return None
+    return found if config_hash({"kind": kind, **config})[:12] == folder.name else None
 
 
 class StageRunner:
@@ -98,7 +108,7 @@ class StageRunner:
             self.log.append({"stage": stage.label, "path": str(out), "cached": True})
             return out
         if (out / DONE_FILE).exists():  # written by hand or cut short: not this stage's mark
-            self.echo(f"{head}: {out / DONE_FILE} is no finished stage's record: running it again")
+            self.echo(f"{head}: {out / DONE_FILE} {NO_RECORD}")
         self.echo(f"{head} ...")
         # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
         # covers only part of its work and is no rate for later estimates.
@@ -150,10 +160,13 @@ def needed_stages(
 
 
 def stage_wall(folder: Path) -> float:
-    """The wall time a finished stage recorded, here or in an imported record (0 when none)."""
-    for name in (DONE_FILE, RECORD_FILE):
+    """The wall time a finished stage recorded, here or in an imported record (0 when none, or
+    when what is there is no record: a table's stage time stays a number)."""
+    found = done_record(folder)
+    if found is None:
         try:
-            return float(json.loads((Path(folder) / name).read_text()).get("wall_s") or 0)
+            found = json.loads((Path(folder) / RECORD_FILE).read_text())
         except (OSError, ValueError):
-            continue
-    return 0.0
+            return 0.0
+    wall = found.get("wall_s") if isinstance(found, dict) else None
+    return float(wall) if finite_seconds(wall) else 0.0

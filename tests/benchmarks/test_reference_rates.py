@@ -80,12 +80,14 @@ def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path):
     import sys
 
     from lhf_hf.collection.backend_verdict import cpu_model
-    from lhf_hf.reproduce.stages import DONE_FILE
+    from lhf_hf.reproduce.stages import DONE_FILE, config_hash
 
-    stage = tmp_path / "work" / "collect" / "abc"
+    config = {"i": "abc"}  # a finished stage's folder is named by its config's hash
+    stage = tmp_path / "work" / "collect" / config_hash({"kind": "collect", **config})[:12]
     stage.mkdir(parents=True)
     record = {
         "kind": "collect",
+        "config": config,
         "wall_s": 10.0,
         "cpu": cpu_model(),
         "threads": 2,
@@ -165,12 +167,14 @@ def _collect_stage(work, wall):
     import json
 
     from lhf_hf.collection.backend_verdict import cpu_model
-    from lhf_hf.reproduce.stages import DONE_FILE
+    from lhf_hf.reproduce.stages import DONE_FILE, config_hash
 
-    stage = work / "collect" / f"s{wall:g}"
+    config = {"wall": wall}  # a finished stage's folder is named by its config's hash
+    stage = work / "collect" / config_hash({"kind": "collect", **config})[:12]
     stage.mkdir(parents=True)
     record = {
         "kind": "collect",
+        "config": config,
         "wall_s": wall,
         "cpu": cpu_model(),
         "threads": 2,

@@ -90,6 +90,9 @@ def test_rates_from_finished_stages_the_reference_and_thread_counts(tmp_path):
     old = tmp_path / "train" / "old"
     old.mkdir()
     (old / DONE_FILE).write_text(json.dumps({"kind": "train", "wall_s": 3}))  # no cost: skipped
+    copied = tmp_path / "train" / "copied"  # another stage's record copied in: not this one's
+    copied.mkdir()
+    (copied / DONE_FILE).write_bytes((a.path(tmp_path) / DONE_FILE).read_bytes())
     records = measured_stages(tmp_path)
     assert len(records) == 4
     table = rate_table(records)

@@ -16,7 +16,7 @@ from lhf_hf.reproduce.stages import DONE_FILE, Stage, StageRunner
 # A stand-in stage process: records when it ran, then marks its stage done (or fails).
 CHILD = """
 import json, os, sys, time
-out, fail, kind = sys.argv[1], sys.argv[2] == "1", sys.argv[3]
+out, fail, kind, config = sys.argv[1], sys.argv[2] == "1", sys.argv[3], json.loads(sys.argv[4])
 t0 = time.time()
 time.sleep(0.3)
 print("working in", out, "threads", os.environ.get("OMP_NUM_THREADS"))
@@ -25,7 +25,7 @@ if fail:
 json.dump({"start": t0, "end": time.time(), "threads": os.environ.get("OMP_NUM_THREADS"),
            "pid": os.getpid()},
           open(os.path.join(out, "times.json"), "w"))
-json.dump({"kind": kind, "wall_s": 0.3}, open(os.path.join(out, "stage.json"), "w"))
+json.dump({"kind": kind, "config": config, "wall_s": 0.3}, open(os.path.join(out, "stage.json"), "w"))
 """
 
 
@@ -56,7 +56,8 @@ def _graph(fail_filter: bool = False):
 
 def _command(work: Path, failing: set[str] = frozenset()):
     return lambda s: [
-        sys.executable, "-c", CHILD, str(s.path(work)), str(int(s.label in failing)), s.kind
+        sys.executable, "-c", CHILD, str(s.path(work)), str(int(s.label in failing)), s.kind,
+        json.dumps(s.config),
     ]  # fmt: skip
 
 
@@ -88,6 +89,14 @@ def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path)
     assert {v["threads"] for v in t.values() if v["pid"]} == {"1"}
     assert [e["stage"] for e in runner.log] and all(not e["cached"] for e in runner.log)
     assert (stages[1].path(tmp_path) / LOG_FILE).read_text().startswith("working in")
+    # a child's stage whose mark is no record runs again, and the parent says why
+    mark = stages[1].path(tmp_path) / DONE_FILE  # "train base"
+    mark.write_text("[]")
+    redo = StageRunner(tmp_path, total=len(stages), echo=lines.append)
+    run_stages(stages, redo, jobs=2, worker_command=_command(tmp_path), poll_s=0.02)
+    said = f"train    train base: {mark} is no finished stage's record: running it again"
+    assert any(line.endswith(said) for line in lines) and stages[1].done(tmp_path)
+    assert [e["stage"] for e in redo.log if not e["cached"]] == ["train base"]
     # the cache cannot tell: a sequential rerun finds every stage done
     again = StageRunner(tmp_path, total=len(stages), echo=lines.append)
     run_stages(stages, again, jobs=1, worker_command=None)

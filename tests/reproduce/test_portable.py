@@ -88,7 +88,7 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     assert "2 evaluation(s) were imported (`--import-stages`)" in report.read_text()
     assert (
         summary["left_out"] == 2
-        and "2 left out: what reads them was imported" in report.read_text()
+        and "2 left out: not done, but what reads them is" in report.read_text()
     )
     # exported on again, to a third machine: run 0's trainings go as the records they are here
     assert export_experiment(spec, tmp_path / "again", "quick", 2, work_b) == {
@@ -113,8 +113,17 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     assert sorted(o["stage"] for o in other) == sorted(ev.label for ev in run0_evals)
     assert {o["trained_on"] for o in other} == {"f" * 64} and other[0]["here_machine"]["isa"]
     text = report.read_text()
-    assert "**Warning**: 2 evaluation(s) are of models trained on another draw" in text
+    assert "**Warning**: 2 evaluation(s) are of models trained on other data than" in text
     assert f"- {run0_evals[0].label}: trained on ffffffffffff, here " in text
+    assert set(other[0]["here_machine"]) == {"cpu", "isa", "threads"}  # no local paths
+    # a fingerprint that is no string (edited to null) is nothing to compare, not a crash
+    path = run0_evals[0].path(work_b) / "eval" / "eval_results.json"
+    found = json.loads(path.read_text())
+    found["model"]["dataset"]["fingerprint"] = None
+    path.write_text(json.dumps(found))
+    reproduce(spec, "quick", 2, tmp_path / "out_c", work_b, echo=lambda s: None)
+    other = json.loads((tmp_path / "out_c" / "results.json").read_text())["other_data"]
+    assert [o["stage"] for o in other] == [run0_evals[1].label]
 
 
 @pytest.fixture(scope="module")
@@ -270,8 +279,14 @@ def test_export_refuses_what_it_would_lose_and_the_cli_checks_its_flags(exported
 
 
 def _noop(out: Path) -> None:
-    """A finished stage's mark (its folder is WORK/<kind>/<hash12>)."""
-    (out / DONE_FILE).write_text(json.dumps({"kind": out.parent.name, "wall_s": 0.0}))
+    """A stage that writes nothing (its runner marks it done)."""
+
+
+def _mark(stage: Stage, work: Path) -> None:
+    """``stage`` finished elsewhere: its record, as an import copies it in."""
+    stage.path(work).mkdir(parents=True)
+    record = {"kind": stage.kind, "config": stage.config, "wall_s": 0.0}
+    (stage.path(work) / DONE_FILE).write_text(json.dumps(record))
 
 
 def test_needed_stages_leave_out_what_only_done_stages_read(tmp_path):
@@ -281,8 +296,7 @@ def test_needed_stages_leave_out_what_only_done_stages_read(tmp_path):
     ev = Stage("evaluate", "eval", {"i": 3}, _noop, (tr,))
     plan = [col, fil, tr, ev]
     assert needed_stages(plan, tmp_path, [fil, ev]) == plan  # nothing done: everything
-    ev.path(tmp_path).mkdir(parents=True)
-    _noop(ev.path(tmp_path))  # the evaluation came with an import
+    _mark(ev, tmp_path)  # the evaluation came with an import
     assert needed_stages(plan, tmp_path, [fil, ev]) == [col, fil, ev]  # no training
     assert needed_stages(plan, tmp_path, [ev]) == [ev]  # nor a collection nobody reads
     # with two jobs the done evaluation is reported cached although its training is not planned

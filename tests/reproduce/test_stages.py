@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from lhf_hf.reproduce.stages import DONE_FILE, Stage, StageRunner, done_record
+from lhf_hf.reproduce.stages import DONE_FILE, Stage, StageRunner, done_record, stage_wall
 
 
 def _stage(calls: list) -> Stage:
@@ -41,6 +41,9 @@ def test_a_finished_stage_is_cached(tmp_path):
         '{"kind": "filter", "wall_s": true}',
         '{"kind": 5, "wall_s": 3}',
         '{"kind": "train", "wall_s": 3}',  # another kind's record
+        '{"kind": "filter", "wall_s": 0}',  # no config
+        '{"kind": "filter", "wall_s": 0, "config": {"lam": 2.0}}',  # another stage's config
+        '{"kind": "filter", "wall_s": 0, "config": [1]}',
         '{"kind": "filter", "wall_s": 3',  # cut short
         "",
     ],
@@ -62,3 +65,31 @@ def test_a_stage_json_that_is_no_record_runs_the_stage_again(tmp_path, text):
 
 def test_done_record_of_a_missing_folder_is_none(tmp_path):
     assert done_record(tmp_path / "absent") is None
+
+
+def test_a_record_copied_from_another_stage_is_not_this_ones(tmp_path):
+    calls: list = []
+    a, b = _stage(calls), _stage(calls)
+    b.config = {"lam": 2.0}
+    runner = StageRunner(tmp_path, echo=lambda s: None)
+    runner.run(a)
+    b.path(tmp_path).mkdir(parents=True)
+    (b.path(tmp_path) / DONE_FILE).write_bytes((a.path(tmp_path) / DONE_FILE).read_bytes())
+    assert a.done(tmp_path) and not b.done(tmp_path)
+
+
+def test_stage_wall_is_a_number_whatever_the_mark(tmp_path):
+    calls: list = []
+    stage = _stage(calls)
+    out = StageRunner(tmp_path, echo=lambda s: None).run(stage)
+    assert stage_wall(out) == json.loads((out / DONE_FILE).read_text())["wall_s"]
+    found = json.loads((out / DONE_FILE).read_text())
+    (out / DONE_FILE).write_text(json.dumps({**found, "wall_s": float("nan")}))
+    assert (
+        stage_wall(out) == 0.0
+    )  # was NaN: a table's stage time became "nan h", results.json not JSON
+    (out / DONE_FILE).unlink()
+    (out / "stage.record.json").write_text(json.dumps({"wall_s": 12.5}))  # an imported record
+    assert stage_wall(out) == 12.5
+    (out / "stage.record.json").write_text('{"wall_s": "12"}')
+    assert stage_wall(out) == 0.0
