@@ -120,6 +120,28 @@ def test_a_failed_stage_stops_new_starts_and_names_its_log(tmp_path):
     assert not stages[4].path(tmp_path).exists()  # eval base
 
 
+def test_a_sigterm_of_the_parent_reaches_the_running_children(tmp_path):
+    # The CLI turns SIGTERM into an exception (cli.main.Terminated); here the scheduler's own
+    # call raises one while a child runs: the child is terminated at once, not waited on for 30 s.
+    from lhf_hf.cli.main import Terminated
+
+    stages = _graph()
+    started: list = []
+
+    def command(s: Stage) -> list[str]:
+        if started:
+            raise Terminated(143)  # as if `kill` arrived when the second child was to start
+        started.append(s)
+        return [sys.executable, "-c", "import time; time.sleep(60)"]
+
+    runner = StageRunner(tmp_path, total=len(stages), echo=lambda s: None)
+    t0 = time.perf_counter()
+    with pytest.raises(Terminated):
+        run_stages(stages, runner, jobs=2, worker_command=command, poll_s=0.02)
+    assert time.perf_counter() - t0 < 30  # the sleeping child was stopped, not awaited
+    assert [s.label for s in started] == ["train base"] and not started[0].done(tmp_path)
+
+
 def test_a_stage_failing_in_this_process_raises_its_error_after_the_children_end(tmp_path):
     stages = _graph(fail_filter=True)
     runner = StageRunner(tmp_path, total=len(stages), echo=lambda s: None)
