@@ -13,6 +13,15 @@ Strategy = Literal["linear", "softmax", "none", "top-fraction"]
 ScanOrder = Literal["descending", "dataset"]
 STRATEGIES: tuple[str, ...] = get_args(Strategy)
 SCAN_ORDERS: tuple[str, ...] = get_args(ScanOrder)
+#: The settings each strategy reads (``filtering.resample``, ``filtering.select``): a sweep over
+#: another one makes arms that select the same histories.  Linear sampling is invariant to
+#: ``r_max`` (min-max normalisation cancels it); ``none`` keeps every history once.
+READS: dict[str, frozenset[str]] = {
+    "linear": frozenset({"lam", "seed", "scan_order"}),
+    "softmax": frozenset({"lam", "alpha", "r_max", "seed", "scan_order"}),
+    "none": frozenset(),
+    "top-fraction": frozenset({"lam", "r_max", "fraction"}),
+}
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ import yaml
 
 from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
 from lhf_hf.configs.commands import EXPERIMENT_PRESETS as PRESETS
+from lhf_hf.configs.filter import READS as FILTER_READS
 from lhf_hf.constants import OBJECTIVES
 from lhf_hf.envs import get_spec
 
@@ -249,6 +250,12 @@ class Experiment:
             raise ValueError(f"filter.sweep.key {key!r} is set by each run (run r uses seed r)")
         if key not in {f.name for f in dataclasses.fields(FilterConfig)}:
             raise ValueError(f"filter.sweep.key {key!r} is not a FilterConfig field")
+        strategy = base.get("strategy", FilterConfig.strategy)
+        if key != "strategy" and key not in FILTER_READS.get(strategy, {key}):
+            raise ValueError(
+                f"filter.sweep.key {key!r}: the {strategy!r} strategy does not read it, so every "
+                f"arm would select the same histories (it reads {sorted(FILTER_READS[strategy])})"
+            )
         return [(f"{key}={v}", FilterConfig(**{**base, key: v}, seed=run)) for v in sweep["values"]]
 
     def train_config(

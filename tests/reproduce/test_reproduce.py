@@ -122,6 +122,16 @@ def test_spec_errors(tmp_path):
         ("filter", {"sweep": {"key": "lamda", "values": [1]}}, "sweep.key 'lamda'"),
         ("filter", {"sweep": {"key": "seed", "values": [1]}}, "set by each run"),
         ("filter", {"sweep": {"key": "lam", "values": [1, 1.0]}}, "values repeat"),
+        (
+            "filter",
+            {"sweep": {"key": "alpha", "values": [0.5, 1]}},
+            "'linear' strategy does not read",
+        ),
+        (
+            "filter",
+            {"strategy": "none", "sweep": {"key": "lam", "values": [0, 1]}},
+            "'none' strategy",
+        ),
         ("collect", {"histories": 2.5}, r"collect: CollectConfig.histories must be an integer"),
         ("train", {"lr": "1e-3"}, r"TrainConfig.lr must be a number, got '1e-3' \(in YAML"),
         ("evaluate", {"split_seed": 5}, "evaluate.split_seed is not a setting"),  # run r: split r
