@@ -118,12 +118,9 @@ def measured_stages(work: str | Path) -> list[dict]:
     is no rate, and whether it runs again is the stage cache's business."""
     out = []
     for path in sorted(Path(work).glob(f"*/*/{DONE_FILE}")):
-        try:
-            rec = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue  # a damaged mark: that stage will run again anyway
-        if not _cost_record(rec) or done_record(path.parent) is None:
-            continue  # no cost, or not this folder's stage (another's record copied in, edited)
+        rec = done_record(path.parent)  # None: damaged, edited, or another stage's record
+        if rec is None or not _cost_record(rec):
+            continue  # no rate: that stage runs again anyway, or recorded no cost
         work_s = work_seconds(rec.get("kind", ""), path.parent)
         usable = work_s is not None and math.isfinite(work_s) and work_s > 0
         rec["work_s"] = min(work_s, rec["wall_s"]) if usable else rec["wall_s"]

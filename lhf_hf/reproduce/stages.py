@@ -66,7 +66,12 @@ class Stage:
 
 def finite_seconds(v) -> bool:
     """A JSON number of seconds: finite and >= 0 (not a bool, a string, NaN or infinity)."""
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+    if not isinstance(v, int | float) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v) and v >= 0
+    except OverflowError:  # an integer too large for a float
+        return False
 
 
 def done_record(folder: Path) -> dict | None:
