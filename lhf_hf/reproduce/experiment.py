@@ -95,6 +95,8 @@ class Experiment:
     """One paper experiment at one budget preset (``load_experiment(name, preset)``).
 
     name / title: the spec's file stem and a one-line description (the paper table it reproduces).
+    spec: what names it to ``lhf reproduce``: the name of a shipped spec, the path (as given) of
+        any other yaml, so a report's command line runs as written.
     envs / objectives: the grid; every cell trains a baseline and an LHF model per run.
     runs: independent runs; run r uses seed r and train/test split r (paper: 3).
     collect: ``CollectConfig`` fields; the reproduction sets ``env_id``, ``seed`` and ``split_seed``
@@ -130,6 +132,7 @@ class Experiment:
     paper_table: str = ""
     budget: str = ""
     narrowed: bool = False
+    spec: str = ""
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -362,8 +365,10 @@ def load_experiment(
             raise ValueError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
     if runs is not None:
         merged["runs"] = int(runs)
+    shipped = path.resolve() == (EXPERIMENTS_DIR / f"{path.stem}.yaml").resolve()
     exp = Experiment(
         name=path.stem,
+        spec=path.stem if shipped else str(name_or_path),
         title=merged.pop("title", path.stem),
         preset=preset,
         envs=tuple(merged.pop("envs", ())),

@@ -73,7 +73,10 @@ def _table(folder: Path, summary: dict) -> list[str]:
     # to the folder that holds the root, as the default ``results/NAME`` is to the repository
     default = Path(default_out(exp["name"], exp["preset"], narrowed)).name
     where = None if folder.name == default else f"{folder.parent.name}/{folder.name}"
-    facts = [f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where)}`"]
+    # a custom spec is named by its path (``spec``; tables before it was recorded: the name)
+    facts = [
+        f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where, exp.get('spec'))}`"
+    ]
     facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
     # A preset's budget changes over time (the cpu presets went from 50 to 100 histories per goal):
     # the recorded sizes tell tables made by the same command line apart.

@@ -65,14 +65,21 @@ def default_out(name: str, preset: str, narrowed_to=None) -> str:
 
 
 def command_line(
-    name: str, preset: str, runs: int, narrowed_to=None, out: str | None = None
+    name: str,
+    preset: str,
+    runs: int,
+    narrowed_to=None,
+    out: str | None = None,
+    spec: str | None = None,
 ) -> str:
     """The ``lhf reproduce`` call that makes a table (``narrowed_to``: its objectives when only
-    some of the spec's were run; ``out``: its folder, written only when not the default one)."""
+    some of the spec's were run; ``out``: its folder, written only when not the default one;
+    ``spec``: the yaml path of a spec that is not shipped, which ``name``, its stem, would not
+    find)."""
     tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
     if out is not None and Path(out) != Path(default_out(name, preset, narrowed_to)):
         tail += f" --out {out}"
-    return f"lhf reproduce {name} --preset {preset} --runs {runs}{tail}"
+    return f"lhf reproduce {spec or name} --preset {preset} --runs {runs}{tail}"
 
 
 def _objective(backbone: str) -> str:
@@ -152,7 +159,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     lines = [
         f"# {exp.title}",
         "",
-        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None, str(out))}`: "
+        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None, str(out), exp.spec)}`: "
         f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
         f"tasks per run). Paper: {exp.paper_table or '-'}.",
         "",

@@ -10,6 +10,7 @@ runs), and ``report.md`` beside the paper's numbers.  Every stage is cached by i
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -228,7 +229,11 @@ def snapshot_spec(
     if not copy.exists():
         copy.parent.mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(text, copy)
-    if load_experiment(str(copy), preset, runs, objectives) != exp:
+    # the copy is named by its path (``spec``), the planned experiment by what the user gave
+    if (
+        dataclasses.replace(load_experiment(str(copy), preset, runs, objectives), spec=exp.spec)
+        != exp
+    ):
         raise RuntimeError(f"the spec {name!r} changed while this run was starting: run it again")
     return copy
 

@@ -108,6 +108,16 @@ def test_index_names_a_narrowed_table_s_command(tmp_path):
     assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`;" in render_index(tmp_path)[0]
 
 
+def test_index_names_a_custom_spec_by_its_recorded_path(tmp_path):
+    _table(tmp_path, "c", [], {})
+    path = tmp_path / "c-cpu" / "results.json"
+    assert "`lhf reproduce c --preset cpu --runs 3`;" in render_index(tmp_path)[0]  # no spec: name
+    summary = json.loads(path.read_text())
+    summary["experiment"]["spec"] = "specs/c.yaml"
+    path.write_text(json.dumps(summary))
+    assert "`lhf reproduce specs/c.yaml --preset cpu --runs 3`;" in render_index(tmp_path)[0]
+
+
 def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
     _table(tmp_path, "one run", [{"env_id": "darkroom", "arm": "lhf", "rows": [
         _row("AD", None, None, base=0.0, lhf=1.0),

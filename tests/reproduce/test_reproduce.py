@@ -18,6 +18,7 @@ from lhf_hf.reproduce import (
     plan_stages,
     reproduce,
 )
+from lhf_hf.reproduce.experiment import EXPERIMENTS_DIR
 from lhf_hf.reproduce.report import verdict
 
 TINY = {
@@ -254,6 +255,27 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     assert "darkroom, AD: E +20.0% (95% CI of the per-run E: +8.3 .. +31.7) -> helps" in text
     assert "the paper's DICP values are with planning" in text
     assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
+
+
+def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
+    """A shipped spec is named by its name, any other yaml by the path it was given as: the
+    report's command line then runs as written (its stem would be an unknown experiment)."""
+    from lhf_hf.reproduce.report import render_report
+
+    path = _spec(tmp_path, TINY, "mine")
+    custom = load_experiment(path, "quick")
+    assert (custom.name, custom.spec) == ("mine", path)
+    shipped = load_experiment("darkroom-main", "quick")
+    assert shipped.spec == "darkroom-main"
+    # a shipped spec given by its path is still the shipped one
+    assert load_experiment(str(EXPERIMENTS_DIR / "darkroom-main.yaml"), "quick").spec == (
+        "darkroom-main"
+    )
+    summary = {"stages": [], "created": "now", "versions": {}}
+    text = render_report(custom, [], summary, Path("results/mine-quick"))
+    assert f"`lhf reproduce {path} --preset quick --runs 2`" in text  # the default folder: no --out
+    text = render_report(custom, [], summary, tmp_path / "elsewhere")
+    assert f"`lhf reproduce {path} --preset quick --runs 2 --out {tmp_path / 'elsewhere'}`" in text
 
 
 def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
