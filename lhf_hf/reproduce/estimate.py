@@ -8,6 +8,11 @@ seconds-per-unit rate holds for (``key``):
 - train: tokens (max_steps x batch x tokens per item); key: objective, model preset, attention.
 - evaluate: env-steps (episodes x tasks x horizon; with planning, the planned ones); key: env,
   objective, preset, plan, context.
+- train and evaluate keys end in ``|ctxN`` when the model's context is not the env's default
+  (``context_tag``): attention per token and a window's recomputation grow with it.
+
+An env with no rate of a kind borrows its twin's (``twins``: the same family, spaces, horizon and
+default context, e.g. the Meta-World ML1 tasks), and the basis names the env it was measured on.
 
 A finished stage records its cost, its wall time, the CPU model and its torch threads in
 ``stage.json``, so every reproduction measures rates for the next estimate; the time of the part
@@ -39,7 +44,8 @@ import torch
 
 from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
 from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
-from lhf_hf.envs import get_spec
+from lhf_hf.envs import get_spec, list_env_ids
+from lhf_hf.envs.registry import describe_space
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
@@ -78,10 +84,19 @@ def data_cost(kind: str, transitions: float) -> Cost:
     return Cost(kind, transitions)
 
 
+def context_tag(env: str, cfg: TrainConfig) -> str:
+    """``|ctxN`` when the model's context is not the env's default: a token's attention and an
+    evaluation step's window grow with the context, so a rate holds for one context only (the
+    default's keys carry no tag, as measured before the tag existed)."""
+    spec = get_spec(env)
+    context = cfg.context_length or spec.context_length
+    return "" if context == spec.context_length else f"|ctx{context}"
+
+
 def train_cost(env: str, cfg: TrainConfig) -> Cost:
     config = model_config_for(get_spec(env), cfg, has_optimal=True)
     tokens = sequence_length(cfg, config) * config.tokens_per_transition
-    key = f"train|{env}|{cfg.objective}|{cfg.preset}|{cfg.attention}"
+    key = f"train|{env}|{cfg.objective}|{cfg.preset}|{cfg.attention}{context_tag(env, cfg)}"
     return Cost(key, float(cfg.max_steps * cfg.batch_size * tokens))
 
 
@@ -106,7 +121,7 @@ def eval_cost(
         if cfg.context != "auto"
         else ("cache" if train.attention == "band" else "window")
     )
-    key = f"evaluate|{env}|{objective}|{train.preset}|{plan}|{context}"
+    key = f"evaluate|{env}|{objective}|{train.preset}|{plan}|{context}{context_tag(env, train)}"
     return Cost(key, float(steps * tasks * cfg.rollouts))
 
 
@@ -332,6 +347,39 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
     return None
 
 
+def twins(env: str) -> list[str]:
+    """The other registered envs whose stages cost the same per unit as ``env``'s, as far as
+    their specs tell: the same family, spaces, horizon and default context (the Meta-World ML1
+    tasks: one model of one size, one simulator; a task's own contacts make its steps cost a few
+    percent more or less), in registry order."""
+    spec = get_spec(env)
+
+    def shape(s) -> tuple:
+        return (s.family, describe_space(s.state_space), describe_space(s.action_space),
+                s.horizon, s.context_length)  # fmt: skip
+
+    return [e for e in list_env_ids() if e != env and shape(get_spec(e)) == shape(spec)]
+
+
+def find_twin_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) -> Rate | None:
+    """``find_rate`` of the same kind of stage on a twin env (``twins``), when the key's own env
+    has none: its basis names the env it was measured on."""
+    kind, *fields = key.split("|")
+    if not fields:  # a derivation's or filter's key names no env
+        return None
+    env, *rest = fields
+    try:
+        others = twins(env)
+    except KeyError:  # a key of an env no longer registered
+        return None
+    for other in others:
+        rate = find_rate("|".join([kind, other, *rest]), threads, table, cpu, reference)
+        if rate is not None:
+            return Rate(rate.seconds_per_unit, rate.overhead_s,
+                        f"{rate.basis}, measured on {other}", rate.stages)  # fmt: skip
+    return None
+
+
 def _threaded(key: str) -> bool:
     return key.startswith(("train", "evaluate"))
 
@@ -348,7 +396,9 @@ def estimate(
         row = {"kind": s.kind, "label": s.label, "cached": s.done(Path(work)), "seconds": None}
         if not row["cached"] and s.cost is not None:
             threads = 1 if jobs > 1 and _threaded(s.cost.key) else threads_here
-            rate = find_rate(s.cost.key, threads, table, cpu, reference)
+            rate = find_rate(s.cost.key, threads, table, cpu, reference) or find_twin_rate(
+                s.cost.key, threads, table, cpu, reference
+            )
             if rate is None:
                 row["basis"] = f"no measured rate for {s.cost.key}"
                 missing.append(s.cost.key)
@@ -444,7 +494,7 @@ def render(est: dict, header: str) -> str:
             "measured: a finished stage records its rate, so running the same env, objective and "
             "model preset once for a few steps (the specs in benchmarks/calibration/: "
             "gridworlds.yaml, planning.yaml, planning-key-to-door.yaml, lightweight.yaml, "
-            "metaworld.yaml) completes the estimate)"
+            "metaworld.yaml, metaworld-sac.yaml) completes the estimate)"
         )
     else:
         lines.append(f"{est['to_run']} of {plural(n, 'stage')} to run: {total}")

@@ -269,9 +269,15 @@ def test_costs_by_hand():
     # (Meta-World: 50 test tasks x 7 episodes x 100 steps)
     mw = TrainConfig(dataset="-", out="-", objective="dicp", preset="paper", context_length=500)
     mw_ev = EvalConfig(model="-", out="-", episodes=7, plan=True)
+    # a context other than the env's default (Meta-World: 1,000) is named: a rate holds for one
     assert eval_cost("metaworld-reach-wall", "dicp", mw, mw_ev, 0) == Cost(
-        "evaluate|metaworld-reach-wall|dicp|paper|plan|window", 50 * 7 * 100
+        "evaluate|metaworld-reach-wall|dicp|paper|plan|window|ctx500", 50 * 7 * 100
     )
+    assert train_cost("metaworld-reach-wall", mw).key.endswith("|paper|window|ctx500")
+    default = TrainConfig(dataset="-", out="-", objective="dicp", preset="paper")
+    assert train_cost("metaworld-reach-wall", default).key.endswith("|paper|window")
+    ctx80 = TrainConfig(dataset="-", out="-", objective="dicp", preset="paper", context_length=80)
+    assert train_cost("darkroom", ctx80).key == "train|darkroom|dicp|paper|window"  # its default
     band = TrainConfig(dataset="-", out="-", objective="ad", preset="paper", attention="band")
     assert eval_cost("darkroom", "ad", band, ev, 0).key.endswith("|cache")  # auto: its semantics
 
@@ -378,3 +384,26 @@ def test_the_work_folder_must_be_a_folder(tmp_path):
         with pytest.raises(ValueError, match="not a stage cache folder|--work"):
             export_experiment("darkroom-main", tmp_path / "x", "quick", work=work)
     assert not (tmp_path / "r").exists() and not (tmp_path / "x").exists()
+
+
+def test_twins_lend_their_rates_and_say_so():
+    """A Meta-World task never measured takes another ML1 task's rate (one model size, one
+    simulator), named in the basis; gridworlds of other sizes or contexts lend nothing."""
+    from lhf_hf.reproduce.estimate import find_twin_rate, twins
+
+    assert "metaworld-reach-wall" in twins("metaworld-reach")
+    assert "metaworld-reach" not in twins("metaworld-reach")
+    assert twins("darkroom") == []  # darkroom-permuted: another context; -large: another grid
+    ref = {"cpu": "cpu A", "rates": [
+        {"key": "train|metaworld-reach-wall|dicp|paper|window|ctx500", "threads": 1,
+         "seconds_per_unit": 2e-5, "overhead_s": 3.0, "stages": 2},
+    ]}  # fmt: skip
+    key = "train|metaworld-push|dicp|paper|window|ctx500"
+    assert find_rate(key, 1, {}, "cpu A", ref) is None
+    rate = find_twin_rate(key, 1, {}, "cpu A", ref)
+    assert (rate.seconds_per_unit, rate.overhead_s, rate.stages) == (2e-5, 3.0, 2)
+    assert rate.basis == "reference, measured on metaworld-reach-wall"
+    # another context is another rate; keys without an env, or of an unknown env, have no twin
+    assert find_twin_rate(key.replace("ctx500", "ctx200"), 1, {}, "cpu A", ref) is None
+    assert find_twin_rate("filter", 1, {}, "cpu A", ref) is None
+    assert find_twin_rate("train|no-such-env|ad", 1, {}, "cpu A", ref) is None
