@@ -174,5 +174,6 @@ for _name in ML1_TASKS:
             describe_task=_describe,
             extra_packages=("metaworld", "mujoco"),
             reports_success=True,
+            cost_class="metaworld-ml1",  # one model size, one MuJoCo arm: --estimate's twins
         )
     )

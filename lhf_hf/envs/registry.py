@@ -51,6 +51,9 @@ class EnvSpec:
     state_names: names of the state coordinates (dataset features), or None.
     extra_packages: packages of the optional extra whose versions a dataset records.
     reports_success: episodes report ``info["success"]`` (Meta-World): evaluation records success.
+    cost_class: envs whose stages cost the same per unit of work (one model size, one simulator
+        and step cost class) share a label, so ``lhf reproduce --estimate`` may time one by the
+        other's measured rate (the Meta-World ML1 tasks); None: only its own rates.
     reward_values: the rewards one step can give when they are few (the gridworlds: 0 and 1), in
         increasing order: DICP then predicts the reward as one of these classes (cross-entropy; the
         reference's reward classifier); None: a real-valued reward, regressed (Meta-World).
@@ -78,6 +81,7 @@ class EnvSpec:
     state_names: tuple[str, ...] | None = None
     extra_packages: tuple[str, ...] = ()
     reports_success: bool = False
+    cost_class: str | None = None
     reward_values: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:

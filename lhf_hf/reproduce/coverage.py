@@ -278,6 +278,8 @@ def coverage(
         for folder, s in tables:
             if s["experiment"]["name"] != name or s["experiment"].get("preset") != preset:
                 continue
+            if s["experiment"].get("spec", name) != name:  # a custom yaml of a shipped spec's stem
+                continue
             try:
                 mine.append((folder, s, recorded_experiment(s, exp)))
             except ValueError as exc:

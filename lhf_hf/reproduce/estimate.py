@@ -50,7 +50,7 @@ from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
 from .parallel import IN_PROCESS, can_start, start_order
-from .stages import DONE_FILE, Cost, Stage, done_record
+from .stages import COST_FORMAT, DONE_FILE, RECORD_FILE, Cost, Stage, done_record
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
 #: side by side (190-198 s vs 124-126 s, BENCHMARKS.md "Reproduce: stages side by side", Intel).
@@ -126,6 +126,41 @@ def eval_cost(
 
 
 # ---- rates and the estimate
+def current_key(rec: dict, work: Path) -> str | None:
+    """A record's cost key as ``train_cost`` / ``eval_cost`` make it now.  Records written before
+    keys named a non-default context (no ``format`` in their cost) were keyed as if every model
+    had its env's default one: a training's context is read from its config, an evaluation's
+    from its training's record (``model`` is the training's hash); None when that cannot be
+    read (the record is then no rate rather than a rate filed under another context)."""
+    cost = rec["cost"]
+    key = cost["key"]
+    kind, *fields = key.split("|")
+    if cost.get("format") == COST_FORMAT or kind not in ("train", "evaluate") or not fields:
+        return key
+    try:
+        spec = get_spec(fields[0])
+    except KeyError:
+        return key  # an env no longer registered: nothing to estimate with it anyway
+    config = rec.get("config")
+    if kind == "evaluate":
+        model = config.get("model") if isinstance(config, dict) else None
+        config = None
+        for name in (DONE_FILE, RECORD_FILE) if isinstance(model, str) and model else ():
+            try:
+                config = json.loads((work / "train" / model[:12] / name).read_text())["config"]
+                break
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+    if not isinstance(config, dict):
+        return None
+    context = config.get("context_length")
+    if context is None or context == spec.context_length:
+        return key
+    if not isinstance(context, int) or isinstance(context, bool):
+        return None
+    return f"{key}|ctx{context}"
+
+
 def measured_stages(work: str | Path) -> list[dict]:
     """Every finished stage under ``work`` that recorded its cost (older ones did not), with
     ``work_s``: the seconds of the part that scales with the units (``work_seconds``).  A mark that
@@ -136,6 +171,10 @@ def measured_stages(work: str | Path) -> list[dict]:
         rec = done_record(path.parent)  # None: damaged, edited, or another stage's record
         if rec is None or not _cost_record(rec):
             continue  # no rate: that stage runs again anyway, or recorded no cost
+        key = current_key(rec, Path(work))
+        if key is None:
+            continue  # an older record whose context cannot be told
+        rec["cost"] = {**rec["cost"], "key": key}
         work_s = work_seconds(rec.get("kind", ""), path.parent)
         usable = work_s is not None and math.isfinite(work_s) and work_s > 0
         rec["work_s"] = min(work_s, rec["wall_s"]) if usable else rec["wall_s"]
@@ -348,16 +387,20 @@ def find_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) ->
 
 
 def twins(env: str) -> list[str]:
-    """The other registered envs whose stages cost the same per unit as ``env``'s, as far as
-    their specs tell: the same family, spaces, horizon and default context (the Meta-World ML1
-    tasks: one model of one size, one simulator; a task's own contacts make its steps cost a few
-    percent more or less), in registry order."""
+    """The other registered envs whose stages cost the same per unit as ``env``'s: the same
+    declared ``cost_class`` (the Meta-World ML1 tasks: one model size, one simulated arm; a task's
+    own contacts make its steps cost a few percent more or less) and, as a guard, the same spaces,
+    horizon and default context; in registry order.  Gridworld variants declare none: their
+    dynamics differ (Dark Key-to-Door's planned steps cost 1.4x Darkroom-Permuted's), and each
+    has its own measured rates."""
     spec = get_spec(env)
 
     def shape(s) -> tuple:
-        return (s.family, describe_space(s.state_space), describe_space(s.action_space),
+        return (s.cost_class, describe_space(s.state_space), describe_space(s.action_space),
                 s.horizon, s.context_length)  # fmt: skip
 
+    if spec.cost_class is None:
+        return []
     return [e for e in list_env_ids() if e != env and shape(get_spec(e)) == shape(spec)]
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -78,8 +79,8 @@ def command_line(
     find)."""
     tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
     if out is not None and Path(out) != Path(default_out(name, preset, narrowed_to)):
-        tail += f" --out {out}"
-    return f"lhf reproduce {spec or name} --preset {preset} --runs {runs}{tail}"
+        tail += f" --out {shlex.quote(str(out))}"
+    return f"lhf reproduce {shlex.quote(spec or name)} --preset {preset} --runs {runs}{tail}"
 
 
 def _objective(backbone: str) -> str:

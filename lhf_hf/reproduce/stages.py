@@ -28,6 +28,9 @@ LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
 #: A finished stage's ``stage.json`` imported without its output (``portable.py``): what it cost,
 #: for the report's stage time; the stage itself is not done here.
 RECORD_FILE = "stage.record.json"
+#: A ``stage.json`` cost's key format: 2 = keys name a non-default model context (``|ctxN``,
+#: ``estimate.context_tag``); records without it are re-keyed when read (``estimate.current_key``).
+COST_FORMAT = 2
 #: Said of a ``stage.json`` that is no finished stage's record (``done_record``).
 NO_RECORD = "is no finished stage's record: running it again"
 
@@ -125,7 +128,7 @@ class StageRunner:
         done = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
         if stage.cost is not None and not resumed:  # a measured rate for later estimates
             done.update(
-                cost=dataclasses.asdict(stage.cost),
+                cost={**dataclasses.asdict(stage.cost), "format": COST_FORMAT},
                 cpu=cpu_model(),
                 isa=instruction_set(),  # "AMD EPYC" names machines ~2x apart (estimate.same_machine)
                 threads=torch.get_num_threads(),

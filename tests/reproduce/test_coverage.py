@@ -206,3 +206,15 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
     assert "| fewer runs (1 of 3) |" in "\n".join(
         render_coverage(coverage(tmp_path, "cpu", ["darkroom-lambda"]))
     )
+
+
+def test_a_custom_spec_of_a_shipped_stem_is_not_the_shipped_table(tmp_path):
+    """``mine/darkroom-lambda.yaml`` shares the shipped spec's name (its stem), not its cells."""
+    now = load_experiment("darkroom-lambda", "cpu").to_dict()
+    ad = [("lam=0", _row("AD", 0.1))]
+    _table(tmp_path, "custom", {**now, "spec": "mine/darkroom-lambda.yaml"}, ad, "2026-12-02")
+    cell = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]["cells"][0]
+    assert cell["status"] == "not run"
+    _table(tmp_path, "shipped", now, ad, "2026-12-01")  # its own record names it by its name
+    cell = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]["cells"][0]
+    assert (cell["status"], cell["table"]) == ("done", "shipped")

@@ -17,7 +17,7 @@ from lhf_hf.reproduce.estimate import (
     render,
     schedule,
 )
-from lhf_hf.reproduce.stages import DONE_FILE, Cost, Stage
+from lhf_hf.reproduce.stages import COST_FORMAT, DONE_FILE, RECORD_FILE, Cost, Stage
 
 
 def _noop(out):
@@ -394,6 +394,9 @@ def test_twins_lend_their_rates_and_say_so():
     assert "metaworld-reach-wall" in twins("metaworld-reach")
     assert "metaworld-reach" not in twins("metaworld-reach")
     assert twins("darkroom") == []  # darkroom-permuted: another context; -large: another grid
+    # gridworld variants declare no cost class: Key-to-Door's planned steps cost 1.4x Permuted's,
+    # though their spaces, horizon and context are one
+    assert twins("darkroom-permuted") == [] and twins("dark-key-to-door") == []
     ref = {"cpu": "cpu A", "rates": [
         {"key": "train|metaworld-reach-wall|dicp|paper|window|ctx500", "threads": 1,
          "seconds_per_unit": 2e-5, "overhead_s": 3.0, "stages": 2},
@@ -407,3 +410,59 @@ def test_twins_lend_their_rates_and_say_so():
     assert find_twin_rate(key.replace("ctx500", "ctx200"), 1, {}, "cpu A", ref) is None
     assert find_twin_rate("filter", 1, {}, "cpu A", ref) is None
     assert find_twin_rate("train|no-such-env|ad", 1, {}, "cpu A", ref) is None
+
+
+def test_older_records_are_re_keyed_by_the_context_they_ran_at(tmp_path):
+    """Records made before keys named a non-default context: a training's context comes from its
+    config, an evaluation's from its training's record; one that cannot be told is no rate (not
+    a rate filed under the default context: Meta-World's 1,000 against the 500 it ran at)."""
+    here = cpu_model()
+    mw = "metaworld-reach-wall"
+    old_train = Stage("train", "t", {"context_length": 500}, _noop,
+                      cost=Cost(f"train|{mw}|dicp|paper|window", 100))  # fmt: skip
+    default_train = Stage("train", "d", {"context_length": None}, _noop,
+                          cost=Cost(f"train|{mw}|ad|paper|window", 100))  # fmt: skip
+    _record(tmp_path, old_train, 20.0, 1, here)
+    _record(tmp_path, default_train, 20.0, 1, here)
+    ev = Stage("evaluate", "e", {"model": old_train.hash}, _noop,
+               cost=Cost(f"evaluate|{mw}|dicp|paper|plan|window", 50))  # fmt: skip
+    orphan = Stage("evaluate", "o", {"model": "f" * 64}, _noop,
+                   cost=Cost(f"evaluate|{mw}|ad|paper|no plan|window", 50))  # fmt: skip
+    grid = Stage("evaluate", "g", {"model": "e" * 64}, _noop,
+                 cost=Cost("evaluate|darkroom|ad|paper|no plan|window", 50))  # fmt: skip
+    for s in (ev, orphan, grid):
+        _record(tmp_path, s, 5.0, 1, here)
+    keys = {r["label"]: r["cost"]["key"] for r in measured_stages(tmp_path)}
+    assert keys == {
+        "t": f"train|{mw}|dicp|paper|window|ctx500",
+        "d": f"train|{mw}|ad|paper|window",  # its env's default: untagged, as now
+        "e": f"evaluate|{mw}|dicp|paper|plan|window|ctx500",
+        # "o": its training's record is not here, so its context is unknown: no rate
+        # "g": likewise, whatever its env
+    }
+    # an imported training's record (stage.record.json) tells its evaluations' context too
+    (tmp_path / "train" / "ffffffffffff").mkdir()
+    (tmp_path / "train" / "ffffffffffff" / RECORD_FILE).write_text(
+        json.dumps({"kind": "train", "config": {"context_length": 200}})
+    )
+    keys = {r["label"]: r["cost"]["key"] for r in measured_stages(tmp_path)}
+    assert keys["o"] == f"evaluate|{mw}|ad|paper|no plan|window|ctx200"
+
+
+def test_new_records_are_keyed_as_made(tmp_path):
+    """A record of the current format keeps its key: no lookup of its training is needed."""
+    from lhf_hf.reproduce.stages import StageRunner
+
+    def work(out):
+        time.sleep(0.15)
+
+    ev = Stage("evaluate", "e", {"model": "f" * 64}, work,
+               cost=Cost("evaluate|darkroom|ad|paper|no plan|window", 50))  # fmt: skip
+    StageRunner(tmp_path, echo=lambda m: None).run(ev)
+    rec = json.loads((ev.path(tmp_path) / DONE_FILE).read_text())
+    assert rec["cost"] == {
+        "key": "evaluate|darkroom|ad|paper|no plan|window",
+        "units": 50,
+        "format": COST_FORMAT,
+    }
+    assert [r["cost"]["key"] for r in measured_stages(tmp_path)] == [rec["cost"]["key"]]

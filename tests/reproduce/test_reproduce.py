@@ -276,6 +276,10 @@ def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
     assert f"`lhf reproduce {path} --preset quick --runs 2`" in text  # the default folder: no --out
     text = render_report(custom, [], summary, tmp_path / "elsewhere")
     assert f"`lhf reproduce {path} --preset quick --runs 2 --out {tmp_path / 'elsewhere'}`" in text
+    # a path with a space is quoted, so the line still runs as written
+    spaced = load_experiment(_spec(tmp_path, TINY, "my spec"), "quick")
+    text = render_report(spaced, [], summary, Path("results/my spec-quick"))
+    assert f"`lhf reproduce '{tmp_path / 'my spec.yaml'}' --preset quick --runs 2`" in text
 
 
 def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
