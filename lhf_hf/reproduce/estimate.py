@@ -537,7 +537,7 @@ def render(est: dict, header: str) -> str:
             "measured: a finished stage records its rate, so running the same env, objective and "
             "model preset once for a few steps (the specs in benchmarks/calibration/: "
             "gridworlds.yaml, planning.yaml, planning-key-to-door.yaml, lightweight.yaml, "
-            "metaworld.yaml, metaworld-sac.yaml) completes the estimate)"
+            "metaworld.yaml, sac-collection.yaml) completes the estimate)"
         )
     else:
         lines.append(f"{est['to_run']} of {plural(n, 'stage')} to run: {total}")

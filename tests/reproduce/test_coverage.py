@@ -3,6 +3,7 @@ and what is left of the rest (committed exports counted as done)."""
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -124,7 +125,12 @@ def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_
     assert "1 of 2 cells done at the cpu preset's current settings; the other 1: ~" in text
 
 
-def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
+def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path, monkeypatch):
+    module = importlib.import_module("lhf_hf.reproduce.coverage")
+    shipped = module._reference()
+    # the shipped rates without the SAC collection's (measured by sac-collection.yaml)
+    no_sac = {**shipped, "rates": [r for r in shipped["rates"] if "|sac" not in r["key"]]}
+    monkeypatch.setattr(module, "_reference", lambda: no_sac)
     cov = coverage(tmp_path, "cpu", ["darkroom-main", "metaworld-sac"])
     main, sac = cov["specs"]
     assert [c["env"] for c in main["cells"]] == ["darkroom"] * 3
@@ -141,12 +147,17 @@ def test_envs_outside_the_preset_and_unmeasured_stages_are_said(tmp_path):
     assert "3 of the other 7: ~" in text and "; 4 of unknown cost." in text
     with pytest.raises(ValueError, match="unknown preset 'CPU'"):
         coverage(tmp_path, "CPU")
-    # Meta-World SAC's collection was never measured: no number pretends otherwise (its training
-    # and evaluation are Meta-World Reach-Wall's, a twin env of the same sizes)
+    # a collection never measured: no number pretends otherwise (the training and evaluation are
+    # Meta-World Reach-Wall's, a twin env of the same sizes)
     assert (
         "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | unknown: never measured "
         "(collect sb3 sac) |" in text
     )
+    # with the shipped rates every cell has an estimate: Push's SAC collection is Reach's
+    monkeypatch.setattr(module, "_reference", lambda: shipped)
+    text = "\n".join(render_coverage(coverage(tmp_path, "cpu", ["metaworld-sac"])))
+    assert "| metaworld-sac | metaworld-push | AD | +33.5 | not run | - | - | ~" in text
+    assert "unknown: never measured" not in text
 
 
 def test_the_index_lists_the_coverage_first_when_asked(tmp_path):
