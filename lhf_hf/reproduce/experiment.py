@@ -318,16 +318,21 @@ def experiment_names() -> list[str]:
 def spec_path(name_or_path: str | Path) -> Path:
     """The yaml file of a shipped experiment's name, or the given path (which must exist)."""
     path = Path(name_or_path)
+    folder = f"{str(name_or_path)!r} is a folder: a spec is a yaml file or a shipped name"
     if path.suffix:
+        if path.is_dir():
+            raise KeyError(folder)
         if not path.is_file():
             raise KeyError(f"no such spec file: {str(name_or_path)!r}")
         return path
-    path = EXPERIMENTS_DIR / f"{name_or_path}.yaml"
-    if not path.exists():
-        raise KeyError(
-            f"unknown experiment {name_or_path!r}: one of {experiment_names()} (or a yaml path)"
-        )
-    return path
+    shipped = EXPERIMENTS_DIR / f"{name_or_path}.yaml"
+    if shipped.exists():  # a shipped name wins over a folder or file of that name here
+        return shipped
+    if path.is_dir():
+        raise KeyError(folder)
+    # a file without a suffix is not taken for a spec: say so rather than "unknown"
+    hint = " (a spec file needs a .yaml or .yml suffix)" if path.is_file() else " (or a yaml path)"
+    raise KeyError(f"unknown experiment {name_or_path!r}: one of {experiment_names()}{hint}")
 
 
 def load_experiment(

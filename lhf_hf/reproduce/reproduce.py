@@ -185,7 +185,7 @@ def reproduce(
     stages, evals = plan_stages(exp, work)
     _import(import_from, work, stages, echo, exp)
     echo(
-        f"[lhf reproduce] {exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
+        f"[lhf reproduce] {exp.spec or exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
         f"work folder {work}, report in {out}"
     )
@@ -260,7 +260,7 @@ def estimate_experiment(
     est = estimate(needed, work, jobs)
     left_out = len(stages) - len(needed)
     head = (
-        f"[lhf reproduce --estimate] {exp.name}, preset {preset}: {exp.runs} run(s) x "
+        f"[lhf reproduce --estimate] {exp.spec or exp.name}, preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages"
         + (f" ({left_out} left out: what reads them is done)" if left_out else "")
         + f"; work folder {work}"

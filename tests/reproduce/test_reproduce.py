@@ -89,6 +89,13 @@ def test_spec_errors(tmp_path):
         load_experiment("nope")
     with pytest.raises(KeyError, match="no such spec file: '.*/missing.yaml'"):
         load_experiment(str(tmp_path / "missing.yaml"))
+    (tmp_path / "d.yaml").mkdir()
+    for folder in (tmp_path, tmp_path / "d.yaml"):
+        with pytest.raises(KeyError, match="is a folder: a spec is a yaml file or a shipped name"):
+            load_experiment(str(folder))
+    (tmp_path / "nosuffix").write_text(yaml.safe_dump(TINY))
+    with pytest.raises(KeyError, match=r"needs a \.yaml or \.yml suffix"):
+        load_experiment(str(tmp_path / "nosuffix"))
     with pytest.raises(ValueError, match="has no preset 'cpu'"):
         load_experiment(_spec(tmp_path, TINY), "cpu")
     with pytest.raises(ValueError, match="unknown keys"):
