@@ -11,8 +11,9 @@ seconds-per-unit rate holds for (``key``):
 - train and evaluate keys end in ``|ctxN`` when the model's context is not the env's default
   (``context_tag``): attention per token and a window's recomputation grow with it.
 
-An env with no rate of a kind borrows its twin's (``twins``: the same family, spaces, horizon and
-default context, e.g. the Meta-World ML1 tasks), and the basis names the env it was measured on.
+An env with no rate of a kind borrows its twin's (``twins``: the same declared
+``EnvSpec.cost_class``, spaces, horizon and default context: the Meta-World ML1 tasks), and the
+basis names the env it was measured on.
 
 A finished stage records its cost, its wall time, the CPU model and its torch threads in
 ``stage.json``, so every reproduction measures rates for the next estimate; the time of the part
