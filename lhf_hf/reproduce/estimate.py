@@ -424,6 +424,31 @@ def find_twin_rate(key: str, threads: int, table: dict, cpu: str, reference: dic
     return None
 
 
+def _other_contexts(key: str, known: set[str]) -> str:
+    """What a rate-less key's own or twin envs were measured at instead, in words ("" if none):
+    a rate holds for one model context, so another context's is not used."""
+    kind, *fields = key.split("|")
+    if kind not in ("train", "evaluate") or not fields:
+        return ""
+    env, *rest = fields
+    try:
+        envs = {env, *twins(env)}
+    except KeyError:
+        return ""
+    strip = [f for f in rest if not f.startswith("ctx")]
+    found = set()
+    for k in known:
+        k_kind, *k_fields = k.split("|")
+        if k_kind != kind or not k_fields or k_fields[0] not in envs or k == key:
+            continue
+        tags = [f for f in k_fields[1:] if f.startswith("ctx")]
+        if [f for f in k_fields[1:] if not f.startswith("ctx")] == strip:
+            found.add(f"context {tags[0][3:]}" if tags else "the env's default context")
+    if not found:
+        return ""
+    return f" (measured only at {' and '.join(sorted(found))}: a rate holds for one context)"
+
+
 def _threaded(key: str) -> bool:
     return key.startswith(("train", "evaluate"))
 
@@ -444,7 +469,9 @@ def estimate(
                 s.cost.key, threads, table, cpu, reference
             )
             if rate is None:
-                row["basis"] = f"no measured rate for {s.cost.key}"
+                row["basis"] = f"no measured rate for {s.cost.key}" + _other_contexts(
+                    s.cost.key, {k for k, _, _ in table} | {r["key"] for r in reference["rates"]}
+                )
                 missing.append(s.cost.key)
             else:
                 row["seconds"] = rate.seconds(s.cost.units)

@@ -466,3 +466,19 @@ def test_new_records_are_keyed_as_made(tmp_path):
         "format": COST_FORMAT,
     }
     assert [r["cost"]["key"] for r in measured_stages(tmp_path)] == [rec["cost"]["key"]]
+
+
+def test_a_key_without_a_rate_says_which_contexts_were_measured():
+    """Meta-World at its default context 1,000 (the paper preset) has no rate: the reason names
+    the 500 its own and its twins' stages ran at, rather than only a raw key."""
+    from lhf_hf.reproduce.estimate import _other_contexts
+
+    known = {"train|metaworld-reach-wall|ad|paper|window|ctx500", "train|darkroom|ad|paper|window"}
+    assert _other_contexts("train|metaworld-reach|ad|paper|window", known) == (
+        " (measured only at context 500: a rate holds for one context)"
+    )
+    assert _other_contexts("train|metaworld-reach|dicp|paper|window", known) == ""  # other model
+    assert _other_contexts("train|darkroom|ad|paper|window|ctx40", known) == (
+        " (measured only at the env's default context: a rate holds for one context)"
+    )
+    assert _other_contexts("collect|darkroom|batched|ppo", known) == ""
