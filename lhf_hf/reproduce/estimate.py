@@ -461,6 +461,7 @@ def estimate(
     table = rate_table([r for r in measured_stages(work) if same_machine(r, cpu, isa)])
     reference = load_reference() if reference is None else reference
     rows, missing = [], []
+    known = {k for k, _, _ in table} | {r["key"] for r in reference["rates"]}  # for the reasons
     for s in stages:
         row = {"kind": s.kind, "label": s.label, "cached": s.done(Path(work)), "seconds": None}
         if not row["cached"] and s.cost is not None:
@@ -470,7 +471,7 @@ def estimate(
             )
             if rate is None:
                 row["basis"] = f"no measured rate for {s.cost.key}" + _other_contexts(
-                    s.cost.key, {k for k, _, _ in table} | {r["key"] for r in reference["rates"]}
+                    s.cost.key, known
                 )
                 missing.append(s.cost.key)
             else:
