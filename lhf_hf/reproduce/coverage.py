@@ -43,6 +43,7 @@ import yaml
 
 from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
 from .experiment import PRESETS, Experiment, experiment_names, load_experiment, spec_path
+from .rate_key import RateKey
 from .report import _objective, _pct
 from .reproduce import _TRAIN_PLACES, plan_stages
 from .stages import needed_stages
@@ -341,7 +342,7 @@ def coverage(
 
 def _estimate(left: dict) -> str:
     if left["missing"]:  # the key less its env (the row's): "evaluate dicp paper plan window"
-        kinds = sorted(" ".join(k.split("|")[:1] + k.split("|")[2:]) for k in left["missing"])
+        kinds = sorted(RateKey.parse(k).without_env for k in left["missing"])
         # a lower bound from the measured stages alone would mislead (a filter's seconds beside
         # a collection never timed): the cell's cost is unknown
         text = f"unknown: never measured ({', '.join(kinds)})"

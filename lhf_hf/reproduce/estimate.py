@@ -9,7 +9,9 @@ seconds-per-unit rate holds for (``key``):
 - evaluate: env-steps (episodes x tasks x horizon; with planning, the planned ones); key: env,
   objective, preset, plan, context.
 - train and evaluate keys end in ``|ctxN`` when the model's context is not the env's default
-  (``context_tag``): attention per token and a window's recomputation grow with it.
+  (``model_context``): attention per token and a window's recomputation grow with it.
+
+The keys' text layout is ``rate_key.RateKey``'s.
 
 An env with no rate of a kind borrows its twin's (``twins``: the same declared
 ``EnvSpec.cost_class``, spaces, horizon and default context: the Meta-World ML1 tasks), and the
@@ -51,6 +53,7 @@ from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 
 from .parallel import IN_PROCESS, can_start, start_order
+from .rate_key import RateKey
 from .stages import COST_FORMAT, DONE_FILE, RECORD_FILE, Cost, Stage, done_record
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
@@ -77,28 +80,28 @@ class Rate:
 
 # ---- what each stage's time scales with
 def collect_cost(cfg: CollectConfig) -> Cost:
-    key = f"collect|{cfg.env_id}|{cfg.collector}|{cfg.algo}"
-    return Cost(key, float(len(cfg.tasks) * cfg.histories * cfg.steps))
+    key = RateKey("collect", cfg.env_id, (cfg.collector, cfg.algo))
+    return Cost(str(key), float(len(cfg.tasks) * cfg.histories * cfg.steps))
 
 
 def data_cost(kind: str, transitions: float) -> Cost:
     return Cost(kind, transitions)
 
 
-def context_tag(env: str, cfg: TrainConfig) -> str:
-    """``|ctxN`` when the model's context is not the env's default: a token's attention and an
-    evaluation step's window grow with the context, so a rate holds for one context only (the
-    default's keys carry no tag, as measured before the tag existed)."""
+def model_context(env: str, cfg: TrainConfig) -> int | None:
+    """The model's context length when it is not the env's default, else None (``RateKey``'s
+    context: a token's attention and an evaluation step's window grow with the context, so a rate
+    holds for one context only)."""
     spec = get_spec(env)
     context = cfg.context_length or spec.context_length
-    return "" if context == spec.context_length else f"|ctx{context}"
+    return None if context == spec.context_length else context
 
 
 def train_cost(env: str, cfg: TrainConfig) -> Cost:
     config = model_config_for(get_spec(env), cfg, has_optimal=True)
     tokens = sequence_length(cfg, config) * config.tokens_per_transition
-    key = f"train|{env}|{cfg.objective}|{cfg.preset}|{cfg.attention}{context_tag(env, cfg)}"
-    return Cost(key, float(cfg.max_steps * cfg.batch_size * tokens))
+    key = RateKey("train", env, (cfg.objective, cfg.preset, cfg.attention), model_context(env, cfg))
+    return Cost(str(key), float(cfg.max_steps * cfg.batch_size * tokens))
 
 
 def eval_cost(
@@ -122,8 +125,11 @@ def eval_cost(
         if cfg.context != "auto"
         else ("cache" if train.attention == "band" else "window")
     )
-    key = f"evaluate|{env}|{objective}|{train.preset}|{plan}|{context}{context_tag(env, train)}"
-    return Cost(key, float(steps * tasks * cfg.rollouts))
+    fields = (objective, train.preset, plan, context)
+    return Cost(
+        str(RateKey("evaluate", env, fields, model_context(env, train))),
+        float(steps * tasks * cfg.rollouts),
+    )
 
 
 # ---- rates and the estimate
@@ -135,15 +141,20 @@ def current_key(rec: dict, work: Path) -> str | None:
     read (the record is then no rate rather than a rate filed under another context)."""
     cost = rec["cost"]
     key = cost["key"]
-    kind, *fields = key.split("|")
-    if cost.get("format") == COST_FORMAT or kind not in ("train", "evaluate") or not fields:
+    try:
+        parsed = RateKey.parse(key)
+    except ValueError:
+        return key  # not a key this version writes: no stage will ask for its rate
+    if cost.get("format") == COST_FORMAT or parsed.kind not in ("train", "evaluate"):
+        return key
+    if parsed.env is None:
         return key
     try:
-        spec = get_spec(fields[0])
+        spec = get_spec(parsed.env)
     except KeyError:
         return key  # an env no longer registered: nothing to estimate with it anyway
     config = rec.get("config")
-    if kind == "evaluate":
+    if parsed.kind == "evaluate":
         model = config.get("model") if isinstance(config, dict) else None
         config = None
         for name in (DONE_FILE, RECORD_FILE) if isinstance(model, str) and model else ():
@@ -157,9 +168,9 @@ def current_key(rec: dict, work: Path) -> str | None:
     context = config.get("context_length")
     if context is None or context == spec.context_length:
         return key
-    if not isinstance(context, int) or isinstance(context, bool):
+    if not isinstance(context, int) or isinstance(context, bool) or context < 1:
         return None
-    return f"{key}|ctx{context}"
+    return str(parsed.at(context))
 
 
 def measured_stages(work: str | Path) -> list[dict]:
@@ -408,16 +419,18 @@ def twins(env: str) -> list[str]:
 def find_twin_rate(key: str, threads: int, table: dict, cpu: str, reference: dict) -> Rate | None:
     """``find_rate`` of the same kind of stage on a twin env (``twins``), when the key's own env
     has none: its basis names the env it was measured on."""
-    kind, *fields = key.split("|")
-    if not fields:  # a derivation's or filter's key names no env
-        return None
-    env, *rest = fields
     try:
-        others = twins(env)
+        parsed = RateKey.parse(key)
+    except ValueError:
+        return None
+    if parsed.env is None:  # a derivation's or filter's key names no env
+        return None
+    try:
+        others = twins(parsed.env)
     except KeyError:  # a key of an env no longer registered
         return None
     for other in others:
-        rate = find_rate("|".join([kind, other, *rest]), threads, table, cpu, reference)
+        rate = find_rate(str(parsed.on(other)), threads, table, cpu, reference)
         if rate is not None:
             return Rate(rate.seconds_per_unit, rate.overhead_s,
                         f"{rate.basis}, measured on {other}", rate.stages)  # fmt: skip
@@ -427,23 +440,24 @@ def find_twin_rate(key: str, threads: int, table: dict, cpu: str, reference: dic
 def _other_contexts(key: str, known: set[str]) -> str:
     """What a rate-less key's own or twin envs were measured at instead, in words ("" if none):
     a rate holds for one model context, so another context's is not used."""
-    kind, *fields = key.split("|")
-    if kind not in ("train", "evaluate") or not fields:
-        return ""
-    env, *rest = fields
     try:
-        envs = {env, *twins(env)}
-    except KeyError:
+        parsed = RateKey.parse(key)
+        envs = {parsed.env, *twins(parsed.env)} if parsed.env is not None else set()
+    except (ValueError, KeyError):  # not a key, or an env no longer registered
         return ""
-    strip = [f for f in rest if not f.startswith("ctx")]
+    if parsed.kind not in ("train", "evaluate") or not envs:
+        return ""
     found = set()
     for k in known:
-        k_kind, *k_fields = k.split("|")
-        if k_kind != kind or not k_fields or k_fields[0] not in envs or k == key:
+        try:
+            other = RateKey.parse(k)
+        except ValueError:
             continue
-        tags = [f for f in k_fields[1:] if f.startswith("ctx")]
-        if [f for f in k_fields[1:] if not f.startswith("ctx")] == strip:
-            found.add(f"context {tags[0][3:]}" if tags else "the env's default context")
+        if (other.kind, other.fields) != (parsed.kind, parsed.fields) or other.env not in envs:
+            continue
+        if other.context != parsed.context:
+            c = other.context
+            found.add("the env's default context" if c is None else f"context {c}")
     if not found:
         return ""
     return f" (measured only at {' and '.join(sorted(found))}: a rate holds for one context)"

@@ -29,7 +29,7 @@ LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
 #: for the report's stage time; the stage itself is not done here.
 RECORD_FILE = "stage.record.json"
 #: A ``stage.json`` cost's key format: 2 = keys name a non-default model context (``|ctxN``,
-#: ``estimate.context_tag``); records without it are re-keyed when read (``estimate.current_key``).
+#: ``rate_key.RateKey``); records without it are re-keyed when read (``estimate.current_key``).
 COST_FORMAT = 2
 #: Said of a ``stage.json`` that is no finished stage's record (``done_record``).
 NO_RECORD = "is no finished stage's record: running it again"
