@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from pathlib import Path
 from urllib.parse import quote
 
@@ -46,7 +45,7 @@ from .experiment import PRESETS, Experiment, experiment_names, load_experiment, 
 from .rate_key import RateKey
 from .report import _objective, _pct
 from .reproduce import _TRAIN_PLACES, plan_stages
-from .stages import needed_stages
+from .stages import finite_number, needed_stages
 
 #: The recorded settings a table's experiment is rebuilt from (``Experiment``'s own validation).
 SETTINGS = ("collect", "filter", "train", "evaluate")
@@ -146,10 +145,8 @@ def differences(recorded: Experiment, current: Experiment, env: str, objective: 
 
 def recorded_number(x) -> float | None:
     """A number a ``results.json`` recorded: a finite int or float, else None (missing, null, NaN,
-    infinite, a bool, a string of digits); the index reads its tables with it too."""
-    if isinstance(x, bool) or not isinstance(x, int | float):
-        return None
-    return float(x) if math.isfinite(x) else None
+    infinite, a bool, a string of digits, an integer too large for a float); the index reads its tables with it too."""
+    return float(x) if finite_number(x) else None
 
 
 def cell_results(summary: dict, env: str, objective: str) -> list[dict]:

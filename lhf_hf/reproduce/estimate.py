@@ -54,7 +54,15 @@ from lhf_hf.training.trainer import model_config_for, sequence_length
 
 from .parallel import IN_PROCESS, can_start, start_order
 from .rate_key import RateKey
-from .stages import COST_FORMAT, DONE_FILE, RECORD_FILE, Cost, Stage, done_record
+from .stages import (
+    COST_FORMAT,
+    DONE_FILE,
+    RECORD_FILE,
+    Cost,
+    Stage,
+    done_record,
+    finite_number,
+)
 
 #: A training or evaluation with 1 thread takes this many times its 2-thread time when two run
 #: side by side (190-198 s vs 124-126 s, BENCHMARKS.md "Reproduce: stages side by side", Intel).
@@ -194,16 +202,6 @@ def measured_stages(work: str | Path) -> list[dict]:
     return out
 
 
-def _number(v) -> bool:
-    """A finite JSON number (an integer too large for a float is not one: it would overflow)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    try:
-        return math.isfinite(v)
-    except OverflowError:
-        return False
-
-
 def _cost_record(rec) -> bool:
     """Whether a ``stage.json`` holds a usable cost: a string key, positive units and wall time,
     integer threads, and a string kind and CPU model where given."""
@@ -211,8 +209,8 @@ def _cost_record(rec) -> bool:
         return False
     return (
         isinstance(cost.get("key"), str)
-        and _number(cost.get("units")) and cost["units"] > 0
-        and _number(rec.get("wall_s")) and rec["wall_s"] > 0
+        and finite_number(cost.get("units")) and cost["units"] > 0
+        and finite_number(rec.get("wall_s")) and rec["wall_s"] > 0
         and isinstance(t := rec.get("threads", 0), int) and not isinstance(t, bool)
         and 0 <= t <= MAX_THREADS
         and all(isinstance(rec.get(f, ""), str) for f in ("kind", "cpu", "isa"))
@@ -327,7 +325,7 @@ def check_machine(m, where: str = "machine") -> None:
             if isinstance(v, bool) or not isinstance(v, types):
                 raise ValueError(f"{at}: {name!r} is {v!r}")
             low = 1 if name == "stages" else 0
-            if not isinstance(v, str) and not (_number(v) and v >= low):
+            if not isinstance(v, str) and not (finite_number(v) and v >= low):
                 raise ValueError(f"{at}: {name!r} is {str(v)[:40]}")
 
 

@@ -67,14 +67,20 @@ class Stage:
         return done_record(self.path(work)) is not None
 
 
-def finite_seconds(v) -> bool:
-    """A JSON number of seconds: finite and >= 0 (not a bool, a string, NaN or infinity)."""
+def finite_number(v) -> bool:
+    """A finite JSON number: an int or float, not a bool, a string, NaN, infinity or an integer
+    too large for a float (it would overflow when used as one)."""
     if not isinstance(v, int | float) or isinstance(v, bool):
         return False
     try:
-        return math.isfinite(v) and v >= 0
-    except OverflowError:  # an integer too large for a float
+        return math.isfinite(v)
+    except OverflowError:
         return False
+
+
+def finite_seconds(v) -> bool:
+    """A JSON number of seconds: a ``finite_number`` >= 0."""
+    return finite_number(v) and v >= 0
 
 
 def done_record(folder: Path) -> dict | None:

@@ -93,3 +93,26 @@ def test_stage_wall_is_a_number_whatever_the_mark(tmp_path):
     assert stage_wall(out) == 12.5
     (out / "stage.record.json").write_text('{"wall_s": "12"}')
     assert stage_wall(out) == 0.0
+
+
+@pytest.mark.parametrize(
+    "v, number, seconds",
+    [
+        (0, True, True),
+        (1.5, True, True),
+        (-2, True, False),
+        (True, False, False),  # a bool is no number in a record
+        ("3", False, False),
+        (float("nan"), False, False),
+        (float("inf"), False, False),
+        (10**400, False, False),  # overflows a float
+        (None, False, False),
+    ],
+)
+def test_finite_numbers_and_seconds(v, number, seconds):
+    from lhf_hf.reproduce.coverage import recorded_number
+    from lhf_hf.reproduce.stages import finite_number, finite_seconds
+
+    assert finite_number(v) is number
+    assert finite_seconds(v) is seconds
+    assert recorded_number(v) == (float(v) if number else None)
