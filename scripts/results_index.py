@@ -6,7 +6,7 @@ ROOT, cell by cell, our E beside the paper's.
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
 to run (``lhf_hf/reproduce/coverage.py``); then every table.
 
-Exits 1 when ROOT is missing, 2 when some table's ``results.json`` could not be read (the index is
+Exits 1 when ROOT is missing or is one table's folder, 2 when some table's ``results.json`` could not be read (the index is
 still written, naming them).
 """
 

@@ -150,6 +150,11 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
+    if (root / "results.json").exists():  # its README.md would sit beside one table's report
+        raise FileNotFoundError(
+            f"{root} is one table's folder (it holds results.json): give the folder that holds "
+            f"the tables, {root.resolve().parent}"
+        )
     folders = sorted(p.parent for p in root.glob("*/results.json"))
     lines = [
         "# Reproduced tables",

@@ -145,6 +145,10 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
     bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "none")],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 1 and "no results folder" in bad.stderr
+    bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "x-cpu")],
+                         capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 1 and "is one table's folder" in bad.stderr
+    assert not (tmp_path / "x-cpu" / "README.md").exists()
     (tmp_path / "broken").mkdir()
     (tmp_path / "broken" / "results.json").write_text("{")
     bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
