@@ -315,6 +315,12 @@ def experiment_names() -> list[str]:
     return sorted(p.stem for p in EXPERIMENTS_DIR.glob("*.yaml"))
 
 
+def shadows_shipped(name: str, spec: str | None) -> bool:
+    """Whether a spec file outside the package (``spec``, its path as given) is named like a
+    shipped spec (``name``, its stem): the shipped table's default folder is not its own."""
+    return spec is not None and spec != name and name in experiment_names()
+
+
 def spec_path(name_or_path: str | Path) -> Path:
     """The yaml file of a shipped experiment's name, or the given path (which must exist)."""
     path = Path(name_or_path)

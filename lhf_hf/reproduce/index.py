@@ -21,7 +21,7 @@ from lhf_hf.utils.io import write_text_atomic
 from .coverage import coverage as cells_of
 from .coverage import recorded_number as _num
 from .coverage import render_coverage
-from .experiment import train_settings
+from .experiment import shadows_shipped, train_settings
 from .report import _objective, _pct, command_line, default_out, verdict
 
 INDEX_FILE = "README.md"
@@ -72,7 +72,8 @@ def _table(folder: Path, summary: dict) -> list[str]:
     # a table kept beside the command's default folder (another budget): --out names it, relative
     # to the folder that holds the root, as the default ``results/NAME`` is to the repository
     default = Path(default_out(exp["name"], exp["preset"], narrowed)).name
-    where = None if folder.name == default else f"{folder.parent.name}/{folder.name}"
+    own = folder.name == default and not shadows_shipped(exp["name"], exp.get("spec"))
+    where = None if own else f"{folder.parent.name}/{folder.name}"
     # a custom spec is named by its path (``spec``; tables before it was recorded: the name)
     facts = [
         f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where, exp.get('spec'))}`"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .experiment import Experiment
+from .experiment import Experiment, shadows_shipped
 
 #: A sweep's figure per env: every value's LHF curves beside the baseline, one panel per backbone.
 SWEEP_FIGURE = "sweep.png"
@@ -76,9 +76,10 @@ def command_line(
     """The ``lhf reproduce`` call that makes a table (``narrowed_to``: its objectives when only
     some of the spec's were run; ``out``: its folder, written only when not the default one;
     ``spec``: the yaml path of a spec that is not shipped, which ``name``, its stem, would not
-    find)."""
+    find; one named like a shipped spec has no default folder, so its ``out`` is always written)."""
     tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
-    if out is not None and Path(out) != Path(default_out(name, preset, narrowed_to)):
+    default = Path(default_out(name, preset, narrowed_to))
+    if out is not None and (shadows_shipped(name, spec) or Path(out) != default):
         tail += f" --out {shlex.quote(str(out))}"
     return f"lhf reproduce {shlex.quote(spec or name)} --preset {preset} --runs {runs}{tail}"
 

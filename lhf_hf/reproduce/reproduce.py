@@ -33,7 +33,7 @@ from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .estimate import collect_cost, data_cost, estimate, eval_cost, render, train_cost
-from .experiment import Experiment, load_experiment, spec_path
+from .experiment import Experiment, load_experiment, shadows_shipped, spec_path
 from .parallel import check_jobs, run_stages, worker_command
 from .portable import export_stages, import_stages
 from .report import SWEEP_FIGURE, render_report
@@ -208,8 +208,16 @@ def reproduce(
 
 
 def default_out(exp: Experiment) -> str:
-    """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed."""
-    return report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
+    """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed.  A spec
+    file outside the package named like a shipped spec (``mine/darkroom-main.yaml``) has none:
+    its default would be the shipped table's folder, whose report it would replace."""
+    out = report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
+    if shadows_shipped(exp.name, exp.spec):
+        raise ValueError(
+            f"{exp.spec} is named like the shipped spec {exp.name!r}, whose table's folder is "
+            f"{out}: name this report's folder with --out"
+        )
+    return out
 
 
 def snapshot_spec(

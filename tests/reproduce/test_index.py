@@ -116,6 +116,14 @@ def test_index_names_a_custom_spec_by_its_recorded_path(tmp_path):
     summary["experiment"]["spec"] = "specs/c.yaml"
     path.write_text(json.dumps(summary))
     assert "`lhf reproduce specs/c.yaml --preset cpu --runs 3`;" in render_index(tmp_path)[0]
+    # a custom spec named like a shipped one: its folder is written even when it is the default
+    _table(tmp_path, "darkroom-main", [], {})
+    path = tmp_path / "darkroom-main-cpu" / "results.json"
+    summary = json.loads(path.read_text())
+    summary["experiment"]["spec"] = "mine/darkroom-main.yaml"
+    path.write_text(json.dumps(summary))
+    expected = f"`lhf reproduce mine/darkroom-main.yaml --preset cpu --runs 3 --out {tmp_path.name}/darkroom-main-cpu`;"
+    assert expected in render_index(tmp_path)[0]
 
 
 def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):

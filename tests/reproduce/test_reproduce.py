@@ -289,6 +289,29 @@ def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
     assert f"`lhf reproduce '{tmp_path / 'my spec.yaml'}' --preset quick --runs 2`" in text
 
 
+def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
+    """``mine/darkroom-main.yaml``'s default folder would be the shipped table's
+    (``results/darkroom-main-quick``), whose report it would replace: it must name its own, and
+    its report's command line always writes it."""
+    from lhf_hf.reproduce.report import render_report
+    from lhf_hf.reproduce.reproduce import default_out
+
+    path = _spec(tmp_path, TINY, "darkroom-main")
+    mine = load_experiment(path, "quick")
+    assert (mine.name, mine.spec) == ("darkroom-main", path)
+    with pytest.raises(ValueError, match="named like the shipped spec 'darkroom-main'.*--out"):
+        default_out(mine)
+    out = tmp_path / "r"
+    assert main(["reproduce", path, "--work", str(tmp_path / "w"), "--estimate"]) == 0
+    assert main(["reproduce", path, "--work", str(tmp_path / "w")]) == 1  # refused, nothing run
+    assert not (tmp_path / "w").exists() and not Path("results/darkroom-main-quick").exists()
+    summary = {"stages": [], "created": "now", "versions": {}}
+    for folder in (out, Path("results/darkroom-main-quick")):  # even the shipped one's name
+        text = render_report(mine, [], summary, folder)
+        assert f"`lhf reproduce {path} --preset quick --runs 2 --out {folder}`" in text
+    assert default_out(load_experiment("darkroom-main", "quick")) == "results/darkroom-main-quick"
+
+
 def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
     """``plan_dicp: both`` with ``plan_gate`` (a planning setting): the model-free evaluations are
     the same stages as without it (cached ones stay valid), the planned ones carry it."""
