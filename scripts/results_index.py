@@ -6,8 +6,8 @@ ROOT, cell by cell, our E beside the paper's.
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
 to run (``lhf_hf/reproduce/coverage.py``); then every table.
 
-Exits 1 when ROOT is missing or is one table's folder, 2 when some table's ``results.json`` could not be read (the index is
-still written, naming them).
+Exits 1 when ROOT is missing, empty, a file or one table's folder, 2 when some table's
+``results.json`` could not be read (the index is still written, naming them).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def main() -> int:
     args = p.parse_args()
     try:
         path, bad = write_index(args.root, None if args.coverage == "none" else args.coverage)
-    except FileNotFoundError as exc:
+    except (OSError, ValueError) as exc:  # no such folder, a file, one table's folder, ''
         print(exc, file=sys.stderr)
         return 1
     print(path)

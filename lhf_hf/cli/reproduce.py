@@ -29,21 +29,25 @@ def run(args: argparse.Namespace) -> int:
     if o.export_stages is not None:
         from lhf_hf.reproduce import export_experiment  # deferred: heavy, as above
 
-        runs = "" if o.runs is None else f" --runs {o.runs}"
-        objectives = " --objectives " + " ".join(o.objectives) if o.objectives else ""
-        n = export_experiment(o.experiment, o.export_stages, o.preset, o.runs, o.work, o.objectives)
+        n = export_experiment(
+            o.experiment, o.export_stages, o.preset, o.runs, o.work, o.objectives, o.out
+        )
+        placeholder = (
+            " (FOLDER: a spec named like a shipped one names its report's folder)"
+            if " --out FOLDER " in n["command"]
+            else ""
+        )
         print(
             f"[lhf reproduce] exported to {o.export_stages}: {n['portable']} evaluation(s) and "
             f"{n['records']} record(s) of other finished stages; {n['not_done']} stage(s) of "
-            f"the plan are not done in {o.work}. Elsewhere: lhf reproduce {o.experiment} "
-            f"--preset {o.preset}{runs}{objectives} --import-stages {o.export_stages}"
+            f"the plan are not done in {o.work}. Elsewhere: {n['command']}{placeholder}"
         )
         return 0
     if o.estimate:
         from lhf_hf.reproduce import estimate_experiment  # deferred: heavy, as above
 
         text = estimate_experiment(
-            o.experiment, o.preset, o.runs, o.work, o.jobs, o.objectives, o.import_stages
+            o.experiment, o.preset, o.runs, o.work, o.jobs, o.objectives, o.import_stages, out=o.out
         )
         print(text)
         return 0

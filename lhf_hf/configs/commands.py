@@ -109,7 +109,8 @@ class ReproduceOptions:
         ``darkroom-main``) or the path of a yaml file.
     preset: the budget: ``quick`` (CI-sized), ``cpu`` (a couple of hours on 2 cores) or ``paper``.
     runs: independent runs; None = the preset's.
-    out: report folder; None = ``results/EXPERIMENT-PRESET``.
+    out: report folder; None = ``results/EXPERIMENT-PRESET`` (a spec file named like a
+        shipped spec has none: it names its own).
     work: the stage cache (datasets, checkpoints, evaluations), reused by later runs.
     jobs: stages run at once, each in its own process with one thread (2 on 2 cores: trainings
         finish 1.3x sooner); 1 = one after the other in this process.
@@ -149,6 +150,9 @@ class ReproduceOptions:
             )
         if self.runs is not None and self.runs < 1:
             raise ValueError(f"runs must be >= 1, got {self.runs}")
+        for flag, folder in (("--out", self.out), ("--export-stages", self.export_stages)):
+            if folder is not None and not folder.strip():  # '' would be the current folder
+                raise ValueError(f"{flag} is empty: name a folder")
 
 
 @dataclass(frozen=True)

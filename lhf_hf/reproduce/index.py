@@ -69,11 +69,16 @@ def _table(folder: Path, summary: dict) -> list[str]:
     head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
     hours = _num(summary.get("stage_s"))
     narrowed = exp["objectives"] if exp.get("narrowed") else None
-    # a table kept beside the command's default folder (another budget): --out names it, relative
-    # to the folder that holds the root, as the default ``results/NAME`` is to the repository
-    default = Path(default_out(exp["name"], exp["preset"], narrowed)).name
-    own = folder.name == default and not shadows_shipped(exp["name"], exp.get("spec"))
-    where = None if own else f"{folder.parent.name}/{folder.name}"
+    # a table kept beside the command's default folder (another budget), or under a root that is
+    # not ``results/``: --out names it, relative to the folder that holds the root, as the default
+    # ``results/NAME`` is to the repository (``.resolve()``: a root given as ``.`` has no name)
+    default = Path(default_out(exp["name"], exp["preset"], narrowed))
+    parent = folder.resolve().parent.name
+    own = (
+        (parent, folder.name) == (default.parent.name, default.name)
+        and not shadows_shipped(exp["name"], exp.get("spec"))
+    )  # fmt: skip
+    where = None if own else f"{parent}/{folder.name}"
     # a custom spec is named by its path (``spec``; tables before it was recorded: the name)
     facts = [
         f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where, exp.get('spec'))}`"
@@ -148,11 +153,15 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
     names of the tables whose ``results.json`` could not be read (by the index, or by the coverage
     when its settings or cells are malformed).  ``coverage``: a preset whose cells of every shipped
     spec are listed first, done or not (``coverage.py``)."""
+    if not str(root).strip():  # '' would be the current folder
+        raise ValueError("the results folder (--root) is empty: name it")
     root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"{root} is a file, not a results folder")
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
     if (root / "results.json").exists():  # its README.md would sit beside one table's report
-        raise FileNotFoundError(
+        raise ValueError(
             f"{root} is one table's folder (it holds results.json): give the folder that holds "
             f"the tables, {root.resolve().parent}"
         )
@@ -169,7 +178,12 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "
         "are). Tables made before the differences were recorded are judged on E's interval, or on "
-        "|E| against its std before that.",
+        "|E| against its std before that."
+        + (
+            ""
+            if root.resolve().name == "results"
+            else f" The command lines run from the folder that holds `{root.resolve().name}/`."
+        ),
         "",
     ]
     body: list[str] = []

@@ -14,6 +14,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shlex
 import time
 from pathlib import Path
 
@@ -181,7 +182,7 @@ def reproduce(
     check_jobs(jobs)
     work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
-    out = Path(out or default_out(exp))
+    out = Path(report_out(exp, out))
     stages, evals = plan_stages(exp, work)
     _import(import_from, work, stages, echo, exp)
     echo(
@@ -207,6 +208,16 @@ def reproduce(
         return _run(exp, stages, evals, work, out, echo, jobs, command)
 
 
+def report_out(exp: Experiment, out: str | Path | None) -> str | Path:
+    """The report folder: ``out`` as given, else ``default_out``; an empty one is refused (it
+    would be the current folder)."""
+    if out is None:
+        return default_out(exp)
+    if not str(out).strip():
+        raise ValueError("--out is empty: name the report's folder")
+    return out
+
+
 def default_out(exp: Experiment) -> str:
     """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed.  A spec
     file outside the package named like a shipped spec (``mine/darkroom-main.yaml``) has none:
@@ -214,8 +225,8 @@ def default_out(exp: Experiment) -> str:
     out = report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
     if shadows_shipped(exp.name, exp.spec):
         raise ValueError(
-            f"{exp.spec} is named like the shipped spec {exp.name!r}, whose table's folder is "
-            f"{out}: name this report's folder with --out"
+            f"{shlex.quote(exp.spec)} is named like the shipped spec {exp.name!r}, whose table's "
+            f"folder is {out}: name this report's folder with --out"
         )
     return out
 
@@ -255,10 +266,12 @@ def estimate_experiment(
     objectives: list[str] | None = None,
     import_from: list[str | Path] | None = None,
     echo=print,
+    out: str | Path | None = None,
 ) -> str:
     """``lhf reproduce ... --estimate``: the stages, which are cached, and the time the rest takes
     on this machine (``estimate.py``), as text; runs nothing (``import_from`` is imported first,
-    as by ``reproduce``, so the estimate covers what is left)."""
+    as by ``reproduce``, so the estimate covers what is left).  Names the report folder the run
+    would write (``out``, else the default), or why a run would be refused one."""
     check_jobs(jobs)
     work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
@@ -273,6 +286,10 @@ def estimate_experiment(
         + (f" ({left_out} left out: what reads them is done)" if left_out else "")
         + f"; work folder {work}"
     )
+    try:
+        head += f", report in {report_out(exp, out)}"
+    except ValueError as e:
+        head += f"; a run would be refused: {e}"
     return render(est, head)
 
 
@@ -283,10 +300,13 @@ def export_experiment(
     runs: int | None = None,
     work: str | Path = "runs/reproduce",
     objectives: list[str] | None = None,
+    out: str | Path | None = None,
 ) -> dict:
     """``lhf reproduce ... --export-stages DEST``: copy this plan's finished evaluations (and the
     records of its other finished stages) from ``work`` to ``DEST``, to commit or carry to another
-    machine and import there (``portable.py``); runs nothing.  Returns the counts."""
+    machine and import there (``portable.py``); runs nothing.  Returns the counts and
+    ``command``, the call that imports them and finishes the table elsewhere (with ``out``, the
+    report folder, when given; a placeholder ``FOLDER`` where the spec has no default one)."""
     work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
     stages, _ = plan_stages(exp, work)
@@ -298,7 +318,24 @@ def export_experiment(
         "versions": library_versions(["transformers", "accelerate"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-    return export_stages(stages, work, dest, about)
+    counts = export_stages(stages, work, dest, about)
+    return {**counts, "command": import_command(exp, runs, dest, out)}
+
+
+def import_command(
+    exp: Experiment, runs: int | None, dest: str | Path, out: str | Path | None = None
+) -> str:
+    """The call that imports an export (``dest``) and finishes the table elsewhere, shell-quoted:
+    the spec as it was named, its preset, ``runs`` as given, the narrowed objectives, ``out``
+    when given (a placeholder ``FOLDER`` where the spec has no default report folder)."""
+    parts = ["lhf reproduce", shlex.quote(exp.spec or exp.name), "--preset", exp.preset]
+    parts += [] if runs is None else ["--runs", str(runs)]
+    parts += ["--objectives", *exp.objectives] if exp.narrowed else []
+    if out is not None:
+        parts += ["--out", shlex.quote(str(out))]
+    elif shadows_shipped(exp.name, exp.spec):
+        parts += ["--out", "FOLDER"]  # no default: the shipped table's folder is not its own
+    return " ".join([*parts, "--import-stages", shlex.quote(str(dest))])
 
 
 def check_work(work: str | Path) -> Path:

@@ -35,7 +35,9 @@ def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None, select
 
 
 def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_path):
-    _table(tmp_path, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
+    root = tmp_path / "results"  # the command lines are run from its parent
+    root.mkdir()
+    _table(root, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
         _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
         _row("DICP + plan", -0.1, 0.5),
         # E's interval spans 0 but the paired return differences' excludes it: the latter decides
@@ -46,12 +48,12 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
         {"env_id": "darkroom", "arm": "lhf", "run": r, "mean_return_selected_unique": k,
          "mean_return_rejected": j} for r, (k, j) in enumerate([(10.0, 12.0), (11.0, 13.0)])
     ])  # fmt: skip
-    _table(tmp_path, "a-main", [{"env_id": "darkroom-large", "arm": "lam2", "rows": [
+    _table(root, "a-main", [{"env_id": "darkroom-large", "arm": "lam2", "rows": [
         _row("DPT", 0.05, None),
     ]}], {})  # fmt: skip
-    (tmp_path / "not-a-table").mkdir()
-    (tmp_path / "a-main-cpu" / "report.md").unlink()  # no report: the title is not a link
-    text, bad = render_index(tmp_path)
+    (root / "not-a-table").mkdir()
+    (root / "a-main-cpu" / "report.md").unlink()  # no report: the title is not a link
+    text, bad = render_index(root)
     assert bad == []
     # tables in name order, each linking its report
     assert text.index("## Title of a-main") < text.index("## [Title of b-noisy](b-noisy-cpu/")
@@ -94,36 +96,40 @@ def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):
 
 
 def test_index_names_a_narrowed_table_s_command(tmp_path):
-    _table(tmp_path, "n", [], {})
-    path = tmp_path / "n-cpu" / "results.json"
+    root = tmp_path / "results"  # the command lines are run from its parent
+    root.mkdir()
+    _table(root, "n", [], {})
+    path = root / "n-cpu" / "results.json"
     summary = json.loads(path.read_text())
     summary["experiment"].update(narrowed=True, objectives=["dicp"])
     path.write_text(json.dumps(summary))
     # not the narrowed command's default folder (results/n-cpu-dicp): --out names it
     assert (
-        f"`lhf reproduce n --preset cpu --runs 3 --objectives dicp --out {tmp_path.name}/n-cpu`"
-        in render_index(tmp_path)[0]
+        f"`lhf reproduce n --preset cpu --runs 3 --objectives dicp --out {root.name}/n-cpu`"
+        in render_index(root)[0]
     )
-    (tmp_path / "n-cpu").rename(tmp_path / "n-cpu-dicp")
-    assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`;" in render_index(tmp_path)[0]
+    (root / "n-cpu").rename(root / "n-cpu-dicp")
+    assert "`lhf reproduce n --preset cpu --runs 3 --objectives dicp`;" in render_index(root)[0]
 
 
 def test_index_names_a_custom_spec_by_its_recorded_path(tmp_path):
-    _table(tmp_path, "c", [], {})
-    path = tmp_path / "c-cpu" / "results.json"
-    assert "`lhf reproduce c --preset cpu --runs 3`;" in render_index(tmp_path)[0]  # no spec: name
+    root = tmp_path / "results"  # the command lines are run from its parent
+    root.mkdir()
+    _table(root, "c", [], {})
+    path = root / "c-cpu" / "results.json"
+    assert "`lhf reproduce c --preset cpu --runs 3`;" in render_index(root)[0]  # no spec: name
     summary = json.loads(path.read_text())
     summary["experiment"]["spec"] = "specs/c.yaml"
     path.write_text(json.dumps(summary))
-    assert "`lhf reproduce specs/c.yaml --preset cpu --runs 3`;" in render_index(tmp_path)[0]
+    assert "`lhf reproduce specs/c.yaml --preset cpu --runs 3`;" in render_index(root)[0]
     # a custom spec named like a shipped one: its folder is written even when it is the default
-    _table(tmp_path, "darkroom-main", [], {})
-    path = tmp_path / "darkroom-main-cpu" / "results.json"
+    _table(root, "darkroom-main", [], {})
+    path = root / "darkroom-main-cpu" / "results.json"
     summary = json.loads(path.read_text())
     summary["experiment"]["spec"] = "mine/darkroom-main.yaml"
     path.write_text(json.dumps(summary))
-    expected = f"`lhf reproduce mine/darkroom-main.yaml --preset cpu --runs 3 --out {tmp_path.name}/darkroom-main-cpu`;"
-    assert expected in render_index(tmp_path)[0]
+    expected = "`lhf reproduce mine/darkroom-main.yaml --preset cpu --runs 3 --out results/darkroom-main-cpu`;"
+    assert expected in render_index(root)[0]
 
 
 def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
@@ -168,20 +174,22 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
 def test_index_states_each_tables_recorded_budget(tmp_path):
     """Two tables from the same command line, made before and after a preset changed, differ in the
     histories per goal and the steps their results.json recorded; the index shows both."""
+    root = tmp_path / "results"  # the command lines are run from its parent
+    root.mkdir()
     rows = [{"env_id": "darkroom", "arm": "lhf", "rows": [_row("AD", 0.1, 0.1)]}]
-    _table(tmp_path, "old", rows, {})
-    _table(tmp_path, "new", rows, {})
-    _table(tmp_path, "none", rows, {})  # nothing recorded: no budget facts, no error
+    _table(root, "old", rows, {})
+    _table(root, "new", rows, {})
+    _table(root, "none", rows, {})  # nothing recorded: no budget facts, no error
     for name, collect, train, objectives in [
         ("old", {"histories": 50}, {"max_steps": 1000}, ["ad", "dicp"]),
         ("new", {"histories": 100}, {"max_steps": 3000, "by_objective": {"dicp": {"max_steps": 4000}}},
          ["ad", "dicp"]),
     ]:  # fmt: skip
-        path = tmp_path / f"{name}-cpu" / "results.json"
+        path = root / f"{name}-cpu" / "results.json"
         summary = json.loads(path.read_text())
         summary["experiment"].update(collect=collect, train=train, objectives=objectives)
         path.write_text(json.dumps(summary))
-    text, bad = render_index(tmp_path)
+    text, bad = render_index(root)
     assert bad == []
     assert (
         "`lhf reproduce old --preset cpu --runs 3`; 50 histories per goal; 1,000 training steps;"
@@ -192,3 +200,25 @@ def test_index_states_each_tables_recorded_budget(tmp_path):
         "training steps;" in text
     )
     assert "`lhf reproduce none --preset cpu --runs 3`; 2026-12-02T00:00:00+0000." in text
+
+
+def test_command_lines_under_any_root_run_from_its_parent(tmp_path, monkeypatch):
+    """Under a root not named ``results`` every table's folder is named (the default one would be
+    ``results/NAME``), relative to the root's parent, which the page names; a root given as ``.``
+    still has its own name.  An empty root (the current folder) and a file are refused."""
+    root = tmp_path / "mine"
+    root.mkdir()
+    _table(root, "c", [], {})
+    text = render_index(root)[0]
+    assert "`lhf reproduce c --preset cpu --runs 3 --out mine/c-cpu`;" in text
+    assert "The command lines run from the folder that holds `mine/`." in text
+    monkeypatch.chdir(root)
+    assert "`lhf reproduce c --preset cpu --runs 3 --out mine/c-cpu`;" in render_index(".")[0]
+    with pytest.raises(ValueError, match="is empty"):
+        render_index("")
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(NotADirectoryError, match="is a file"):
+        render_index(tmp_path / "f")
+    results = tmp_path / "results"
+    results.mkdir()
+    assert "The command lines run from" not in render_index(results)[0]

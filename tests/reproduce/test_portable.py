@@ -39,7 +39,12 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     carried = tmp_path / "carried"
     n = export_experiment(spec, carried, "quick", runs=2, work=work_a)
     # run 0's 2 evaluations whole; records of its collection, filter and 2 trainings; run 1 not done
-    assert n == {"portable": 2, "records": 4, "not_done": 6}
+    assert n == {
+        "portable": 2,
+        "records": 4,
+        "not_done": 6,
+        "command": f"lhf reproduce {spec} --preset quick --runs 2 --import-stages {carried}",
+    }
     index = json.loads((carried / INDEX_FILE).read_text())
     assert index["experiment"] == "tiny" and index["runs"] == 2
     assert not list(carried.rglob("*.safetensors")) and not list(carried.rglob("*.parquet"))
@@ -95,6 +100,7 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
         "portable": 4,
         "records": 8,
         "not_done": 0,
+        "command": f"lhf reproduce {spec} --preset quick --runs 2 --import-stages {tmp_path / 'again'}",
     }
     # the recollected run 0 selects what A's did (one seed reaches every RNG)
     sel_a = json.loads((tmp_path / "out_a" / "results.json").read_text())["selections"][0]

@@ -293,8 +293,9 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
     """``mine/darkroom-main.yaml``'s default folder would be the shipped table's
     (``results/darkroom-main-quick``), whose report it would replace: it must name its own, and
     its report's command line always writes it."""
+    from lhf_hf.configs.commands import ReproduceOptions
     from lhf_hf.reproduce.report import render_report
-    from lhf_hf.reproduce.reproduce import default_out
+    from lhf_hf.reproduce.reproduce import default_out, estimate_experiment, import_command
 
     path = _spec(tmp_path, TINY, "darkroom-main")
     mine = load_experiment(path, "quick")
@@ -310,6 +311,25 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
         text = render_report(mine, [], summary, folder)
         assert f"`lhf reproduce {path} --preset quick --runs 2 --out {folder}`" in text
     assert default_out(load_experiment("darkroom-main", "quick")) == "results/darkroom-main-quick"
+    # the estimate names the folder a run would write, or why a run would be refused one
+    text = estimate_experiment(path, "quick", work=tmp_path / "w")
+    assert "a run would be refused: " in text and "name this report's folder with --out" in text
+    assert f"report in {out}" in estimate_experiment(path, "quick", work=tmp_path / "w", out=out)
+    # the export's hint for finishing elsewhere: its --out, or a placeholder where it has none
+    assert import_command(mine, 2, tmp_path / "e") == (
+        f"lhf reproduce {path} --preset quick --runs 2 --out FOLDER --import-stages {tmp_path / 'e'}"
+    )
+    assert import_command(mine, None, "my e", "o d") == (
+        f"lhf reproduce {path} --preset quick --out 'o d' --import-stages 'my e'"
+    )
+    shipped = load_experiment("darkroom-main", "cpu", objectives=["dicp"])
+    assert import_command(shipped, None, "e") == (
+        "lhf reproduce darkroom-main --preset cpu --objectives dicp --import-stages e"
+    )
+    # an empty --out would be the current folder
+    with pytest.raises(ValueError, match="--out is empty"):
+        ReproduceOptions(experiment="darkroom-main", out=" ")
+    assert main(["reproduce", "darkroom-main", "--out", "", "--estimate"]) == 1
 
 
 def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
