@@ -318,7 +318,7 @@ def experiment_names() -> list[str]:
 def shadows_shipped(name: str, spec: str | None) -> bool:
     """Whether a spec file outside the package (``spec``, its path as given) is named like a
     shipped spec (``name``, its stem): the shipped table's default folder is not its own."""
-    return spec is not None and spec != name and name in experiment_names()
+    return bool(spec) and spec != name and name in experiment_names()  # '': not recorded
 
 
 def spec_path(name_or_path: str | Path) -> Path:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from urllib.parse import quote
 
@@ -71,9 +72,10 @@ def _table(folder: Path, summary: dict) -> list[str]:
     narrowed = exp["objectives"] if exp.get("narrowed") else None
     # a table kept beside the command's default folder (another budget), or under a root that is
     # not ``results/``: --out names it, relative to the folder that holds the root, as the default
-    # ``results/NAME`` is to the repository (``.resolve()``: a root given as ``.`` has no name)
+    # ``results/NAME`` is to the repository (``abspath``: a root given as ``.`` has no name; not ``resolve``, which would follow a
+    # symlinked ``results`` to wherever it points)
     default = Path(default_out(exp["name"], exp["preset"], narrowed))
-    parent = folder.resolve().parent.name
+    parent = Path(os.path.abspath(folder)).parent.name
     own = (
         (parent, folder.name) == (default.parent.name, default.name)
         and not shadows_shipped(exp["name"], exp.get("spec"))
@@ -163,7 +165,7 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
     if (root / "results.json").exists():  # its README.md would sit beside one table's report
         raise ValueError(
             f"{root} is one table's folder (it holds results.json): give the folder that holds "
-            f"the tables, {root.resolve().parent}"
+            f"the tables, {Path(os.path.abspath(root)).parent}"
         )
     folders = sorted(p.parent for p in root.glob("*/results.json"))
     lines = [
@@ -181,8 +183,9 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "|E| against its std before that."
         + (
             ""
-            if root.resolve().name == "results"
-            else f" The command lines run from the folder that holds `{root.resolve().name}/`."
+            if Path(os.path.abspath(root)).name == "results"
+            else " The command lines run from the folder that holds "
+            f"`{Path(os.path.abspath(root)).name}/`."
         ),
         "",
     ]

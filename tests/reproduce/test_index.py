@@ -222,3 +222,15 @@ def test_command_lines_under_any_root_run_from_its_parent(tmp_path, monkeypatch)
     results = tmp_path / "results"
     results.mkdir()
     assert "The command lines run from" not in render_index(results)[0]
+
+
+def test_a_symlinked_results_folder_keeps_its_name(tmp_path):
+    """``results -> /store/x``: the command lines name ``results/``, not where it points."""
+    store = tmp_path / "store" / "elsewhere"
+    store.mkdir(parents=True)
+    _table(store, "c", [], {})
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "proj" / "results").symlink_to(store, target_is_directory=True)
+    text = render_index(tmp_path / "proj" / "results")[0]
+    assert "`lhf reproduce c --preset cpu --runs 3`;" in text
+    assert "The command lines run from" not in text

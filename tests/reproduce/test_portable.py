@@ -45,6 +45,11 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
         "not_done": 6,
         "command": f"lhf reproduce {spec} --preset quick --runs 2 --import-stages {carried}",
     }
+    # the CLI says how to finish the table elsewhere, as a line that runs as written
+    assert main(["reproduce", spec, "--runs", "2", "--work", str(work_a), "--export-stages",
+                 str(tmp_path / "cli")]) == 0  # fmt: skip
+    command = n["command"].replace(str(carried), str(tmp_path / "cli"))
+    assert f"Elsewhere: {command}\n" in capsys.readouterr().out
     index = json.loads((carried / INDEX_FILE).read_text())
     assert index["experiment"] == "tiny" and index["runs"] == 2
     assert not list(carried.rglob("*.safetensors")) and not list(carried.rglob("*.parquet"))

@@ -289,7 +289,7 @@ def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
     assert f"`lhf reproduce '{tmp_path / 'my spec.yaml'}' --preset quick --runs 2`" in text
 
 
-def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
+def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path, capsys, monkeypatch):
     """``mine/darkroom-main.yaml``'s default folder would be the shipped table's
     (``results/darkroom-main-quick``), whose report it would replace: it must name its own, and
     its report's command line always writes it."""
@@ -298,6 +298,7 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
     from lhf_hf.reproduce.reproduce import default_out, estimate_experiment, import_command
 
     path = _spec(tmp_path, TINY, "darkroom-main")
+    monkeypatch.chdir(tmp_path)  # the default folder would be results/... under the current one
     mine = load_experiment(path, "quick")
     assert (mine.name, mine.spec) == ("darkroom-main", path)
     with pytest.raises(ValueError, match="named like the shipped spec 'darkroom-main'.*--out"):
@@ -306,6 +307,7 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
     assert main(["reproduce", path, "--work", str(tmp_path / "w"), "--estimate"]) == 0
     assert main(["reproduce", path, "--work", str(tmp_path / "w")]) == 1  # refused, nothing run
     assert not (tmp_path / "w").exists() and not Path("results/darkroom-main-quick").exists()
+    capsys.readouterr()
     summary = {"stages": [], "created": "now", "versions": {}}
     for folder in (out, Path("results/darkroom-main-quick")):  # even the shipped one's name
         text = render_report(mine, [], summary, folder)
@@ -329,7 +331,9 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path):
     # an empty --out would be the current folder
     with pytest.raises(ValueError, match="--out is empty"):
         ReproduceOptions(experiment="darkroom-main", out=" ")
-    assert main(["reproduce", "darkroom-main", "--out", "", "--estimate"]) == 1
+    for flag in ("--out", "--export-stages"):
+        assert main(["reproduce", "darkroom-main", flag, ""]) == 1
+        assert f"{flag} is empty: name a folder" in capsys.readouterr().err
 
 
 def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
