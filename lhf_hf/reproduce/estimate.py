@@ -561,7 +561,7 @@ def render(est: dict, header: str) -> str:
         "a rate that table lacks, taken from the machine named (CPU models differ up to ~2x: "
         "an AVX2-only AMD EPYC ran ~2x slower than the AVX-512 Intel Xeon); 'N-thread rate x F' "
         f"= measured at another torch thread count, converted ({THREAD_FACTOR:.2f}x from 2 threads "
-        "to 1); 'measured on ENV' = no rate of this env, its twin's (same cost class, "
+        "to 1); 'measured on ENV' = a twin env's rate, this one's never measured (same cost class, "
         "EnvSpec.cost_class).",
     ]
     if est["jobs"] > est["cores"]:

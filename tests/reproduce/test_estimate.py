@@ -212,7 +212,7 @@ def test_estimate_skips_cached_stages_and_says_what_it_cannot_time(tmp_path, mon
     assert "train base: to run, ~1.7 min (reference, 1 stage)" in text
     assert "'reference' = lhf_hf/reproduce/rates.json (Ref); 'reference, CPU' = a rate" in text
     assert "'N-thread rate x F' = measured at another torch thread count, converted (1.53x" in text
-    assert "'measured on ENV' = no rate of this env, its twin's" in text
+    assert "'measured on ENV' = a twin env's rate, this one's never measured" in text
     assert (
         "6 of 7 stages to run: at least ~3.5 min wall with --jobs 1, for the 3 with a rate; "
         "unknown for the other 3 (marked '?', 2 kinds of stage never measured"
