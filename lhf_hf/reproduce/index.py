@@ -72,8 +72,8 @@ def _table(folder: Path, summary: dict) -> list[str]:
     narrowed = exp["objectives"] if exp.get("narrowed") else None
     # a table kept beside the command's default folder (another budget), or under a root that is
     # not ``results/``: --out names it, relative to the folder that holds the root, as the default
-    # ``results/NAME`` is to the repository (``abspath``: a root given as ``.`` has no name; not ``resolve``, which would follow a
-    # symlinked ``results`` to wherever it points)
+    # ``results/NAME`` is to the repository (``abspath``: a root given as ``.`` has no name; not
+    # ``resolve``, which would follow a symlinked ``results`` to wherever it points)
     default = Path(default_out(exp["name"], exp["preset"], narrowed))
     parent = Path(os.path.abspath(folder)).parent.name
     own = (
@@ -162,10 +162,11 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         raise NotADirectoryError(f"{root} is a file, not a results folder")
     if not root.is_dir():
         raise FileNotFoundError(f"no results folder {root}")
+    where = Path(os.path.abspath(root))  # not resolve(): a symlinked root keeps its name
     if (root / "results.json").exists():  # its README.md would sit beside one table's report
         raise ValueError(
             f"{root} is one table's folder (it holds results.json): give the folder that holds "
-            f"the tables, {Path(os.path.abspath(root)).parent}"
+            f"the tables, {where.parent}"
         )
     folders = sorted(p.parent for p in root.glob("*/results.json"))
     lines = [
@@ -183,9 +184,8 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "|E| against its std before that."
         + (
             ""
-            if Path(os.path.abspath(root)).name == "results"
-            else " The command lines run from the folder that holds "
-            f"`{Path(os.path.abspath(root)).name}/`."
+            if where.name == "results"
+            else f" The command lines run from the folder that holds `{where.name}/`."
         ),
         "",
     ]
