@@ -7,11 +7,10 @@ torch, transformers and datasets, and ``lhf --help`` or a bad flag should not wa
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 from lhf_hf import __version__
+from lhf_hf.utils.signals import Terminated, sigterm_raises
 
 from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train, verify
 
@@ -31,26 +30,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class Terminated(SystemExit):
-    """SIGTERM (``kill``, ``timeout``, ``docker stop``) as an exception, so that an interrupted
-    command cleans up like after Ctrl-C (an --overwrite puts the old artifact back)."""
-
-
-def _terminate(signum, frame) -> None:
-    raise Terminated(128 + signum)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        return int(args.func(args) or 0)
+        with sigterm_raises():  # kill / timeout clean up like Ctrl-C
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"lhf {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -71,9 +59,6 @@ def main(argv: list[str] | None = None) -> int:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
         return 1
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -155,8 +155,13 @@ def _run_sb3(
                         bar.update(1)
             except Exception:
                 # A worker's error: the tasks in flight finish (and commit), queued ones are
-                # dropped (`with pool` would have run every queued task before raising).
-                pool.shutdown(wait=True, cancel_futures=True)
+                # dropped (`with pool` would have run every queued task before raising); an
+                # interrupt while they finish stops them.
+                try:
+                    pool.shutdown(wait=True, cancel_futures=True)
+                except BaseException:
+                    stop_workers(pool)
+                    raise
                 raise
             except BaseException:
                 stop_workers(pool)
@@ -167,9 +172,9 @@ def _run_sb3(
 
 
 def stop_workers(pool: ProcessPoolExecutor) -> None:
-    """An interrupt (Ctrl-C; SIGTERM, which the CLI raises as ``Terminated`` and which reaches this
-    process only): cancel the queued tasks and stop the running ones now.  A plain shutdown waits
-    for every queued task (a SIGTERM'd 10-task Meta-World collection ran on for minutes, and
+    """An interrupt (Ctrl-C; SIGTERM, which ``utils.signals`` raises as ``Terminated`` and which
+    reaches this process only): cancel the queued tasks and stop the running ones now.  A plain
+    shutdown waits for every queued task (a SIGTERM'd 10-task Meta-World collection ran on for minutes, and
     Ctrl-C only failed the tasks in flight: a worker takes the next one after it).  A stopped
     task has not committed; ``resume`` redoes it."""
     terminate = getattr(pool, "terminate_workers", None)  # public from Python 3.14

@@ -172,7 +172,8 @@ def run_stages(
             try:
                 child.wait(timeout=30)
             except subprocess.TimeoutExpired:
-                child.terminate()
+                child.kill()  # a second SIGTERM would interrupt its cleanup; this ends it
+                child.wait()
             state = "finished" if stage.done(work) else "stopped (resumes on the next call)"
             runner.echo(f"[{state.split()[0]}] {stage.kind:<8} {stage.label}: {state}")
         raise

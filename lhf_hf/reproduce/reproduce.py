@@ -15,6 +15,7 @@ import hashlib
 import json
 import os
 import shlex
+import shutil
 import time
 from pathlib import Path
 
@@ -28,7 +29,7 @@ from lhf_hf.filtering.run import run_filter
 from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
-from lhf_hf.training.trainer import get_last_checkpoint
+from lhf_hf.training.trainer import last_checkpoint
 from lhf_hf.utils.io import write_bytes_atomic, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
@@ -120,7 +121,13 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
 
                     def do_train(out: Path, obj=obj, run=run, src=data_stage, sel=sel) -> None:
                         model = out / "model"
-                        resume = model.is_dir() and get_last_checkpoint(str(model)) is not None
+                        resume = last_checkpoint(model) is not None
+                        if model.is_dir() and not resume:
+                            # the stage's own folder, with nothing to resume (killed before its
+                            # first checkpoint): removed, not replaced by --overwrite, which
+                            # sets it aside and, interrupted, puts it back over the new
+                            # checkpoints
+                            shutil.rmtree(model)
                         cfg = exp.train_config(
                             obj,
                             run,

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import torch
 
+from lhf_hf.utils.signals import sigterm_raises
+
 from .experiment import load_experiment
 from .reproduce import plan_stages
 from .stages import StageRunner
@@ -38,7 +40,11 @@ def main(argv: list[str] | None = None) -> int:
     if not match:
         print(f"no stage {a.stage} in {exp.name} at preset {a.preset}", file=sys.stderr)
         return 2
-    StageRunner(a.work, echo=print).run(match[0])
+    # The parent stops a running stage with terminate() (SIGTERM): raised as an exception, the
+    # stage unwinds as under Ctrl-C (its output folder put back or left resumable, its collection
+    # workers stopped) instead of dying mid-write.
+    with sigterm_raises():
+        StageRunner(a.work, echo=print).run(match[0])
     return 0
 
 

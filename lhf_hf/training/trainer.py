@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 from huggingface_hub import HfApi
 from transformers import Trainer, TrainerCallback, TrainingArguments, set_seed
-from transformers.trainer_utils import get_last_checkpoint
+from transformers.trainer_utils import PREFIX_CHECKPOINT_DIR
 
 from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
@@ -387,6 +388,38 @@ def check_resume(checkpoint: str, identity: dict) -> None:
         )
 
 
+#: Written last into a checkpoint by ``Trainer._save_checkpoint`` (after the weights, our identity
+#: file, the optimizer, scheduler and RNG states): a checkpoint whose state parses was saved whole.
+TRAINER_STATE_FILE = "trainer_state.json"
+
+
+def last_checkpoint(folder: str | Path) -> str | None:
+    """The newest *complete* ``checkpoint-N`` in ``folder`` (None: none).
+
+    ``transformers.trainer_utils.get_last_checkpoint`` returns the highest N whatever it holds; a
+    save cut short (Ctrl-C, SIGTERM, a killed process) leaves a checkpoint without its trainer
+    state (or with a truncated file), and resuming it fails on every rerun, or (no optimizer or
+    state) silently restarts the schedule from step 0 on step-N weights.  Such a checkpoint is passed over (and
+    named on stderr): the one saved before it is resumed, and the Trainer saves N again.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        return None
+    numbered = []
+    for path in root.glob(f"{PREFIX_CHECKPOINT_DIR}-*"):
+        step = path.name.split("-", 1)[1]
+        if path.is_dir() and step.isdigit():
+            numbered.append((int(step), path))
+    for _, path in sorted(numbered, reverse=True):
+        try:
+            json.loads((path / TRAINER_STATE_FILE).read_text())
+            return str(path)
+        except (OSError, ValueError):
+            pass
+        print(f"lhf: note: {path} is incomplete (a save cut short): not resumed", file=sys.stderr)
+    return None
+
+
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
     out = Path(cfg.out)
@@ -406,9 +439,11 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
             )
         resume = None
         if cfg.resume:
-            resume = get_last_checkpoint(str(out)) if out.is_dir() else None
+            resume = last_checkpoint(out)
             if resume is None:
-                raise FileNotFoundError(f"--resume: no checkpoint-* folder in {out} to resume from")
+                raise FileNotFoundError(
+                    f"--resume: no complete checkpoint-* folder in {out} to resume from"
+                )
         return _train_into(cfg, model_config, out, resume)
 
 

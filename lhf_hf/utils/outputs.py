@@ -259,6 +259,7 @@ def output_folder(
             replaced = real.parent / f".{real.name}.replaced-{os.getpid()}"
             os.replace(real, replaced)  # atomic: the old artifact is whole until success
         created = not real.exists()
+        was_empty = created or not _content(real)
         try:
             real.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -275,10 +276,17 @@ def output_folder(
             if replaced is not None:  # put the old artifact back: nothing lost
                 shutil.rmtree(real, ignore_errors=True)
                 os.replace(replaced, real)
-            elif created and {p.name for p in real.iterdir()} <= {MARKER}:
-                shutil.rmtree(real, ignore_errors=True)  # failed before writing: leave nothing
-            else:
+            elif was_empty and {p.name for p in real.iterdir()} <= {MARKER}:
+                # failed before writing: leave nothing (an empty folder given to it stays empty)
+                if created:
+                    shutil.rmtree(real, ignore_errors=True)
+                else:
+                    marker.unlink(missing_ok=True)
+            elif not was_empty:
                 _restore_marker(real, before)
+            # else: a folder this run started empty holds part of an lhf artifact: its
+            # in-progress marker stays, so that --resume continues it or --overwrite replaces it
+            # (without a marker both would refuse it as someone's files)
             raise
         record_manifest(real, kind, mutable)
         if replaced is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -121,9 +122,9 @@ def test_a_failed_stage_stops_new_starts_and_names_its_log(tmp_path):
 
 
 def test_a_sigterm_of_the_parent_reaches_the_running_children(tmp_path):
-    # The CLI turns SIGTERM into an exception (cli.main.Terminated); here the scheduler's own
+    # The CLI turns SIGTERM into an exception (utils.signals.Terminated); here the scheduler's own
     # call raises one while a child runs: the child is terminated at once, not waited on for 30 s.
-    from lhf_hf.cli.main import Terminated
+    from lhf_hf.utils.signals import Terminated
 
     stages = _graph()
     started: list = []
@@ -214,3 +215,41 @@ def test_children_plan_from_a_snapshot_of_the_spec(tmp_path):
     assert len(evals) == 4 and {r["config"]["episodes"] for r in evals} == {2}
     (snap,) = work.glob("specs/*/tiny.yaml")
     assert "episodes: 2" in snap.read_text()
+
+
+def test_a_stage_process_unwinds_on_sigterm(monkeypatch, tmp_path):
+    """A stage's own process (--jobs > 1) gets terminate() from the parent: SIGTERM is raised as
+    Terminated there, so the stage's output folder is put back or left resumable (Python's
+    default SIGTERM ends the process with no `finally` run); the handler is restored after."""
+    import os
+    import signal
+
+    from lhf_hf.reproduce import worker
+    from lhf_hf.utils.signals import Terminated
+
+    stage = types.SimpleNamespace(hash="abc123")
+    unwound = []
+
+    def run(self, s):
+        assert s is stage
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(2)
+        finally:
+            unwound.append(True)
+
+    monkeypatch.setattr(worker, "plan_stages", lambda exp, work: ([stage], {}))
+    monkeypatch.setattr(worker.StageRunner, "run", run)
+
+    def guard(signum, frame):  # without the worker's handler: this, not the end of pytest
+        unwound.append("not raised")
+
+    original = signal.signal(signal.SIGTERM, guard)
+    argv = ["darkroom-main", "quick", "--runs", "1", "--work", str(tmp_path), "--stage", "abc123"]
+    try:
+        with pytest.raises(Terminated) as info:
+            worker.main(argv)
+        assert signal.getsignal(signal.SIGTERM) is guard
+    finally:
+        signal.signal(signal.SIGTERM, original)
+    assert info.value.code == 128 + signal.SIGTERM and unwound == [True]

@@ -534,3 +534,48 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert main(["reproduce", "darkroom-noisy", "--preset", "cpu", "--objectives", "dicp",
                  "--work", str(work), "--estimate"]) == 0  # fmt: skip
     assert "1 backbone(s), 24 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 4)
+
+
+def test_a_train_stage_resumes_a_whole_checkpoint_or_starts_clean(tmp_path, monkeypatch):
+    """A training stage's model folder left by a killed run: without a checkpoint it is removed
+    before training (an --overwrite would set it aside and, interrupted, put it back over the new
+    checkpoints); with one, the newest complete checkpoint is resumed (a save cut short is not)."""
+    import importlib
+
+    from lhf_hf.reproduce.stages import DONE_FILE, StageRunner
+
+    reproduce_module = importlib.import_module("lhf_hf.reproduce.reproduce")  # not the function
+
+    spec = json.loads(json.dumps(TINY))
+    spec["presets"]["quick"].update(runs=1)
+    spec["presets"]["quick"]["train"].update(save_steps=2)
+    exp = load_experiment(_spec(tmp_path, spec), "quick")
+    work = tmp_path / "work"
+    stages, _ = plan_stages(exp, work)
+    runner = StageRunner(work, echo=lambda s: None)
+    stage = next(s for s in stages if s.kind == "train")
+    for s in stages[: stages.index(stage)]:  # its collection and selection
+        runner.run(s)
+    model = stage.path(work) / "model"
+    model.mkdir(parents=True)
+    (model / ".lhf_output.json").write_text('{"kind": "model", "lhf_hf": "0.1.0"}')
+    (model / "train_config.json").write_text("{")  # killed before its first checkpoint
+    seen = []
+    real_train = reproduce_module.train
+
+    def train(cfg):
+        seen.append((model.exists(), cfg.resume, cfg.overwrite))
+        return real_train(cfg)
+
+    monkeypatch.setattr(reproduce_module, "train", train)
+    runner.run(stage)
+    assert seen == [(False, False, True)] and stage.done(work)
+    assert not list(model.parent.glob(".model.replaced-*"))
+    assert json.loads((model / "train_config.json").read_text())["resumed_from"] is None
+    # killed again during the save of checkpoint-4: checkpoint-2 is resumed
+    (stage.path(work) / DONE_FILE).unlink()
+    (model / "checkpoint-4" / "trainer_state.json").unlink()
+    runner.run(stage)
+    assert seen[1] == (True, True, False) and stage.done(work)
+    resumed = json.loads((model / "train_config.json").read_text())["resumed_from"]
+    assert resumed.endswith("checkpoint-2")

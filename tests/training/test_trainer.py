@@ -22,6 +22,7 @@ from lhf_hf.envs import get_spec
 from lhf_hf.filtering.select import filter_histories
 from lhf_hf.modeling import ICRLModel, icrl_config
 from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
+from lhf_hf.training.trainer import last_checkpoint
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = dict(
@@ -186,7 +187,7 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
             TrainConfig(objective="ad", reward_weighting="actions", **base),
             has_optimal=False,
         )
-    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+    with pytest.raises(FileNotFoundError, match="no complete checkpoint"):
         train(TrainConfig(objective="ad", resume=True, **base))
 
 
@@ -233,6 +234,12 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
     part = tmp_path / "part"
     part.mkdir()
     shutil.copytree(full / "checkpoint-6", part / "checkpoint-6")
+    # ... and a save of checkpoint-12 cut short (weights truncated, no trainer state): passed over
+    cut = part / "checkpoint-12"
+    shutil.copytree(full / "checkpoint-12", cut)
+    (cut / "trainer_state.json").unlink()
+    (cut / "model.safetensors").write_bytes((cut / "model.safetensors").read_bytes()[:100])
+    assert last_checkpoint(part) == str(part / "checkpoint-6")
     resumed = train(TrainConfig(out=str(part), resume=True, **cfg))
     a, b = load_file(full / "model.safetensors"), load_file(resumed / "model.safetensors")
     for k in a:
@@ -256,6 +263,25 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
         for folder in (out, out / "checkpoint-12"):
             args = json.loads((folder / "training_args.json").read_text())
             assert args["max_steps"] == 12 and args["seed"] == 0 and args["save_steps"] == 6
+
+
+def test_last_checkpoint_is_the_newest_complete_one(tmp_path, capsys):
+    assert last_checkpoint(tmp_path / "absent") is None and last_checkpoint(tmp_path) is None
+    for step, state in [(2, "{}"), (10, "{}"), (11, '{"global_st'), (12, None)]:
+        (tmp_path / f"checkpoint-{step}").mkdir()
+        if state is not None:
+            (tmp_path / f"checkpoint-{step}" / "trainer_state.json").write_text(state)
+    (tmp_path / "checkpoint-99").write_text("a file")
+    (tmp_path / "checkpoint-final").mkdir()
+    # by number, not by name (checkpoint-2 sorts after checkpoint-10 as text)
+    assert last_checkpoint(tmp_path) == str(tmp_path / "checkpoint-10")
+    err = capsys.readouterr().err
+    assert "checkpoint-12 is incomplete" in err and "checkpoint-11 is incomplete" in err
+    for step in (10, 2):
+        (tmp_path / f"checkpoint-{step}" / "trainer_state.json").unlink()
+    assert last_checkpoint(tmp_path) is None
+    with pytest.raises(FileNotFoundError, match="no complete checkpoint"):
+        train(TrainConfig(dataset="-", objective="ad", out=str(tmp_path), resume=True))
 
 
 def test_cli_train_and_its_errors(small_darkroom, tmp_path, capsys):

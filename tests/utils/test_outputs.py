@@ -138,6 +138,36 @@ def test_a_failure_before_writing_leaves_no_folder(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_an_interrupted_first_run_stays_an_artifact_in_progress(tmp_path):
+    """A folder a run started empty (made by it, or given empty) and wrote into before failing
+    keeps its in-progress marker: --resume continues it and --overwrite replaces it.  Without the
+    marker both refused it as someone's files, and a rerun of `lhf reproduce` was stuck."""
+    (tmp_path / "given").mkdir()
+    for name in ("made", "given"):
+        out = tmp_path / name
+        with pytest.raises(KeyboardInterrupt):
+            with output_folder(out, "dataset"):
+                (out / "part-0").write_text("half")
+                raise KeyboardInterrupt
+        assert json.loads((out / MARKER).read_text()) == {
+            "kind": "dataset",
+            "lhf_hf": json.loads((out / MARKER).read_text())["lhf_hf"],
+        }  # no manifest: not a finished artifact
+        with pytest.raises(OutputError, match="--resume to continue it or --overwrite"):
+            with output_folder(out, "dataset", resumable=True):
+                pass
+        with output_folder(out, "dataset", resume=True):
+            assert (out / "part-0").read_text() == "half"
+        with output_folder(out, "dataset", overwrite=True):
+            assert _files(out) == [MARKER]
+    # failing before writing anything: an empty folder given to it is left empty
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError):
+        with output_folder(tmp_path / "empty", "evaluation"):
+            raise ValueError("bad model")
+    assert _files(tmp_path / "empty") == []
+
+
 def test_inputs_are_never_the_output_or_inside_it(tmp_path):
     src = tmp_path / "data"
     with output_folder(src, "dataset"):
