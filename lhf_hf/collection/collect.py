@@ -9,10 +9,11 @@ Tasks are spread over ``config.workers`` processes and, under ``accelerate launc
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from contextlib import ExitStack
 from datetime import timedelta
 from multiprocessing import get_context
@@ -149,7 +150,14 @@ def _run_sb3(
                     for p in todo
                 }
                 while pending:
-                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    # polled, not `wait(...)`: an interrupt inside `wait` can leave its waiter's
+                    # lock held, and the pool's manager thread, which takes it to report a
+                    # result, then blocks the interpreter's exit for good (a double Ctrl-C hung)
+                    finished = {fut for fut in pending if fut.done()}
+                    if not finished:
+                        time.sleep(0.1)
+                        continue
+                    pending -= finished
                     for fut in finished:
                         fut.result()  # re-raises a worker's error; committed tasks stay
                         bar.update(1)
@@ -171,22 +179,35 @@ def _run_sb3(
         bar.close()
 
 
+_INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+
+
 def stop_workers(pool: ProcessPoolExecutor) -> None:
     """An interrupt (Ctrl-C; SIGTERM, which ``utils.signals`` raises as ``Terminated`` and which
     reaches this process only): cancel the queued tasks and stop the running ones now.  A plain
-    shutdown waits for every queued task (a SIGTERM'd 10-task Meta-World collection ran on for minutes, and
-    Ctrl-C only failed the tasks in flight: a worker takes the next one after it).  A stopped
-    task has not committed; ``resume`` redoes it."""
-    terminate = getattr(pool, "terminate_workers", None)  # public from Python 3.14
-    if terminate is not None:
-        terminate()
-        return
-    workers = list((pool._processes or {}).values())  # noqa: SLF001 (3.11-3.13: no public API)
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in workers:
-        proc.terminate()
-    for proc in workers:
-        proc.join(timeout=30)
+    shutdown waits for every queued task (a SIGTERM'd 10-task Meta-World collection ran on for
+    minutes, and Ctrl-C only failed the tasks in flight: a worker takes the next one after it).
+    A stopped task has not committed; ``resume`` redoes it."""
+    # A second Ctrl-C (a double press; `timeout` passing one on) must not cut this short: the
+    # workers would go on with the queued tasks while the exit waits for them.  Ignored until
+    # done (a handler is the main thread's; a signal mask is per thread, and CPython runs the
+    # handler in the main thread whichever thread the kernel picks).
+    main = threading.current_thread() is threading.main_thread()
+    held = {sig: signal.signal(sig, signal.SIG_IGN) for sig in _INTERRUPTS} if main else {}
+    try:
+        terminate = getattr(pool, "terminate_workers", None)  # public from Python 3.14
+        if terminate is not None:
+            terminate()
+            return
+        workers = list((pool._processes or {}).values())  # noqa: SLF001 (3.11-3.13: no public API)
+        for proc in workers:  # first: whatever happens next, no worker takes another task
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:
+            proc.join(timeout=30)
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
 
 
 def exit_with_parent(parent: int, period_s: float = 0.5) -> None:

@@ -40,8 +40,7 @@ def run_filter(
             overwrite=overwrite,
             inputs=[dataset, out],
             legacy=DATASET_FILES,
-            resumable=True,
-        )
+        )  # not resumable: `lhf filter` has no --resume (an error suggesting it named no flag)
     with output_folder(
         out, "selection", overwrite=overwrite, inputs=[dataset, materialize], legacy=[CONFIG_FILE]
     ):

@@ -423,6 +423,7 @@ def last_checkpoint(folder: str | Path) -> str | None:
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
     out = Path(cfg.out)
+    existed = out.is_dir() and any(out.iterdir())  # before the claim creates it
     with ExitStack() as claim:
         if int(os.environ.get("RANK", "0")) == 0:  # rank 0 holds the folder for every process
             claim.enter_context(
@@ -441,8 +442,9 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
         if cfg.resume:
             resume = last_checkpoint(out)
             if resume is None:
+                fix = "--overwrite to train afresh" if existed else "train without --resume"
                 raise FileNotFoundError(
-                    f"--resume: no complete checkpoint-* folder in {out} to resume from"
+                    f"--resume: no complete checkpoint-* folder in {out} to resume from: {fix}"
                 )
         return _train_into(cfg, model_config, out, resume)
 

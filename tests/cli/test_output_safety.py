@@ -119,6 +119,18 @@ def test_a_refused_materialize_writes_no_selection(data, tmp_path, capsys):
     assert not sel.exists()
 
 
+def test_an_existing_materialize_folder_names_only_flags_filter_has(data, tmp_path, capsys):
+    mat = tmp_path / "mat"
+    assert (
+        main(["filter", str(data), "--out", str(tmp_path / "s1"), "--materialize", str(mat)]) == 0
+    )
+    assert (
+        main(["filter", str(data), "--out", str(tmp_path / "s2"), "--materialize", str(mat)]) == 1
+    )
+    err = capsys.readouterr().err
+    assert "pass --overwrite to replace it" in err and "--resume" not in err
+
+
 def test_sigterm_during_overwrite_puts_the_old_model_back(data, tmp_path):
     """kill -TERM (what `timeout` and `docker stop` send) cleans up like Ctrl-C."""
     import os

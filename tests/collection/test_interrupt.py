@@ -32,6 +32,36 @@ def committed(out):
 
 
 @pytest.mark.slow
+def test_a_double_ctrl_c_stops_the_collection(tmp_path):
+    """Two SIGINTs to the process group close together (a double press, or `timeout` passing one
+    on): the command ends, as after one, and no worker goes on with the queued tasks."""
+    out = tmp_path / "d"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lhf_hf", "collect", *ARGS, "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own group: the test's Ctrl-C
+    )
+    deadline = time.time() + 300
+    while not committed(out) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    assert proc.returncode == 130, err[-2000:]
+    at_exit = committed(out)
+    assert len(at_exit) < TASKS
+    time.sleep(3)
+    assert committed(out) == at_exit
+
+
+@pytest.mark.slow
 def test_sigterm_stops_queued_and_running_tasks(tmp_path):
     out = tmp_path / "d"
     proc = subprocess.Popen(

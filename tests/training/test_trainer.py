@@ -280,8 +280,11 @@ def test_last_checkpoint_is_the_newest_complete_one(tmp_path, capsys):
     for step in (10, 2):
         (tmp_path / f"checkpoint-{step}" / "trainer_state.json").unlink()
     assert last_checkpoint(tmp_path) is None
-    with pytest.raises(FileNotFoundError, match="no complete checkpoint"):
+    with pytest.raises(FileNotFoundError, match="no complete checkpoint.*: --overwrite to train"):
         train(TrainConfig(dataset="-", objective="ad", out=str(tmp_path), resume=True))
+    with pytest.raises(FileNotFoundError, match="to resume from: train without --resume"):
+        train(TrainConfig(dataset="-", objective="ad", out=str(tmp_path / "new"), resume=True))
+    assert not (tmp_path / "new").exists()
 
 
 def test_cli_train_and_its_errors(small_darkroom, tmp_path, capsys):
