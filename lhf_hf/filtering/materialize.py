@@ -66,11 +66,13 @@ def materialize(
     overwrite: bool = False,
     progress: bool = True,
     inputs: Iterable[str | Path | None] = (),
+    extra_files: dict[str, Path] | None = None,
 ):
     """Write the selection as a full dataset in our layout (repeated histories as their own slices).
 
     Every task keeps its number of histories; the card says how the dataset was derived.
     ``inputs``: folders ``out`` may not be or touch besides the source dataset (the selection's).
+    ``extra_files``: copied into the dataset before its manifest (``write_derived``).
     """
     _check_source(ds, selection)
     counts = selection.counts()
@@ -110,4 +112,5 @@ def materialize(
         progress=progress,
         inputs=inputs,
         identity={"op": "lhf", "filter": cfg.to_dict()},
+        extra_files=extra_files,
     )

@@ -65,10 +65,15 @@ def _filter_into(dataset, out: Path, config, materialize, overwrite: bool, progr
     plot_selection(selection.table, returns, out / PLOT_FILE, title=f"{ds.env_id}: {label}")
     if materialize is not None:
         start = time.perf_counter()
-        new = materialize_histories(
-            ds, selection, materialize, overwrite=overwrite, progress=progress, inputs=[out]
+        materialize_histories(
+            ds,
+            selection,
+            materialize,
+            overwrite=overwrite,
+            progress=progress,
+            inputs=[out],
+            extra_files={f"meta/{PLOT_FILE}": out / PLOT_FILE},  # before its manifest
         )
         summary["materialize_seconds"] = round(time.perf_counter() - start, 3)
-        (new.root / "meta" / PLOT_FILE).write_bytes((out / PLOT_FILE).read_bytes())
         selection.save(out, summary)
     return summary

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from lhf_hf.utils.io import write_bytes_atomic
 from lhf_hf.utils.versions import library_versions
 
 from .reader import HistoryDataset, load_histories
@@ -32,12 +33,15 @@ def write_derived(
     resume: bool = False,
     progress: bool = True,
     inputs: Iterable[str | Path | None] = (),
+    extra_files: dict[str, Path] | None = None,
 ) -> HistoryDataset:
     """Write ``transform(task, histories)`` for every task of ``source`` as a new dataset at ``out``.
 
     ``derived`` (op, description, ...) is stored as ``info.json["lhf"]["derived_from"]`` together
     with the source's path, fingerprint and collection config.  ``out`` may not be, contain or lie
-    in the source or any of ``inputs``.
+    in the source or any of ``inputs``.  ``extra_files`` (path in the dataset -> file to copy,
+    e.g. the selection's plot) are written before the folder's manifest, so ``lhf verify`` knows
+    them.
     """
     tasks = [int(t) for t in source.lhf["tasks"]]
     H = source.lhf["histories_per_task"]
@@ -48,7 +52,10 @@ def write_derived(
     ):
         if resume and is_complete(out):
             return load_histories(out)
-        return _write_derived(source, out, transform, derived, tasks, H, steps, progress)
+        written = _write_derived(source, out, transform, derived, tasks, H, steps, progress)
+        for name, path in (extra_files or {}).items():
+            write_bytes_atomic(Path(path).read_bytes(), out / name)
+        return written
 
 
 def _write_derived(source, out, transform, derived, tasks, H, steps, progress) -> HistoryDataset:

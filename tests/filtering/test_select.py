@@ -120,6 +120,10 @@ def test_cli_end_to_end(small_darkroom, tmp_path, capsys):
     )
     assert (out / "selection.png").read_bytes()[:4] == b"\x89PNG"
     assert (tmp_path / "mat" / "meta" / "selection.png").exists()
+    # both folders verify: the plot is in the materialised dataset's manifest, not added after it
+    assert main(["verify", str(tmp_path / "mat")]) == 0
+    assert main(["verify", str(out)]) == 0
+    capsys.readouterr()
     assert load_histories(tmp_path / "mat").lhf["derived_from"]["filter"]["alpha"] == 0.25
     assert main(["filter", str(small_darkroom.root), "--out", str(out)]) == 1
     assert "--overwrite" in capsys.readouterr().err
