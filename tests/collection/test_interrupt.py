@@ -31,59 +31,56 @@ def committed(out):
     return sorted((out / C.PARTS_DIR).glob("task-*.json"))
 
 
-@pytest.mark.slow
-def test_a_double_ctrl_c_stops_the_collection(tmp_path):
-    """Two SIGINTs to the process group close together (a double press, or `timeout` passing one
-    on): the command ends, as after one, and no worker goes on with the queued tasks."""
-    out = tmp_path / "d"
+def _started(out, **popen):
+    """A 2-worker collection into ``out``, once its first task is committed."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "lhf_hf", "collect", *ARGS, "--out", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
-        start_new_session=True,  # its own group: the test's Ctrl-C
-    )
-    deadline = time.time() + 300
-    while not committed(out) and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGINT)
-    time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=120)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        raise
-    assert proc.returncode == 130, err[-2000:]
-    at_exit = committed(out)
-    assert len(at_exit) < TASKS
-    time.sleep(3)
-    assert committed(out) == at_exit
-
-
-@pytest.mark.slow
-def test_sigterm_stops_queued_and_running_tasks(tmp_path):
-    out = tmp_path / "d"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "lhf_hf", "collect", *ARGS, "--out", str(out)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
+        **popen,
     )
     deadline = time.time() + 300
     while not committed(out) and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
     assert committed(out), "a first task should have been committed"
-    os.kill(proc.pid, signal.SIGTERM)  # reaches the parent only, as `kill` and `timeout` do
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
-    assert "terminated" in err
+    return proc
+
+
+def _ended_early(proc, out, returncode):
+    """The command ended with ``returncode`` before every task ran, and no worker outlives it."""
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    assert proc.returncode == returncode, err[-2000:]
     at_exit = committed(out)
     # Before the fix every queued task still ran: all 12 were committed when the command ended.
     assert len(at_exit) < TASKS
-    time.sleep(3)  # no worker outlives the command and commits afterwards
+    time.sleep(3)  # no worker commits after the command ended
     assert committed(out) == at_exit
+    return err
 
+
+@pytest.mark.slow
+def test_a_double_ctrl_c_stops_the_collection(tmp_path):
+    """Two SIGINTs to the process group close together (a double press, or `timeout` passing one
+    on): the command ends, as after one, and no worker goes on with the queued tasks."""
+    out = tmp_path / "d"
+    proc = _started(out, start_new_session=True)  # its own group: the test's Ctrl-C
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    _ended_early(proc, out, 130)
+
+
+@pytest.mark.slow
+def test_sigterm_stops_queued_and_running_tasks(tmp_path):
+    out = tmp_path / "d"
+    proc = _started(out, start_new_session=True)
+    os.kill(proc.pid, signal.SIGTERM)  # reaches the parent only, as `kill` and `timeout` do
+    assert "terminated" in _ended_early(proc, out, 128 + signal.SIGTERM)
     r = subprocess.run(
         [sys.executable, "-m", "lhf_hf", "collect", *ARGS, "--out", str(out), "--resume"],
         capture_output=True,
