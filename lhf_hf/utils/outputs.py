@@ -18,6 +18,8 @@ evaluate, compare, reproduce):
   (``.NAME.replaced-PID``), the new one is written under the name, and the old one is deleted only
   once the command succeeded; an error or Ctrl-C puts the old one back.  A killed process leaves
   the old artifact beside the new one (the next writer names it).
+- A run that fails after writing into a folder it started empty leaves it marked in progress
+  (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.
 """
 
 from __future__ import annotations
