@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from lhf_hf import __version__
-from lhf_hf.utils.signals import Terminated, sigterm_raises
+from lhf_hf.utils.signals import Terminated, ignore_interrupts, sigterm_raises
 
 from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train, verify
 
@@ -31,6 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv``, or this program's own (``argv`` None: the console script and
+    ``python -m lhf_hf``), and return its exit code.  As the program, once it has handled an
+    interrupt it ignores further ones while it exits, so that a double Ctrl-C ends it with 130 as a
+    single one does; called with ``argv`` (tests, other programs) it leaves signals as they were."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -40,9 +44,13 @@ def main(argv: list[str] | None = None) -> int:
         with sigterm_raises():  # kill / timeout clean up like Ctrl-C
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
+        if argv is None:
+            ignore_interrupts()
         print(f"lhf {args.command}: interrupted", file=sys.stderr)
         return 130
     except Terminated as exc:
+        if argv is None:
+            ignore_interrupts()
         print(f"lhf {args.command}: terminated", file=sys.stderr)
         return int(exc.code)
     except (

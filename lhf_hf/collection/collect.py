@@ -33,6 +33,7 @@ from lhf_hf.histories.writer import (
     task_done,
     write_task,
 )
+from lhf_hf.utils.signals import INTERRUPTS
 from lhf_hf.utils.versions import library_versions
 
 from . import backend_verdict
@@ -179,9 +180,6 @@ def _run_sb3(
         bar.close()
 
 
-_INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
-
-
 def stop_workers(pool: ProcessPoolExecutor) -> None:
     """An interrupt (Ctrl-C; SIGTERM, which ``utils.signals`` raises as ``Terminated`` and which
     reaches this process only): cancel the queued tasks and stop the running ones now.  A plain
@@ -193,7 +191,7 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
     # done (a handler is the main thread's; a signal mask is per thread, and CPython runs the
     # handler in the main thread whichever thread the kernel picks).
     main = threading.current_thread() is threading.main_thread()
-    held = {sig: signal.signal(sig, signal.SIG_IGN) for sig in _INTERRUPTS} if main else {}
+    held = {sig: signal.signal(sig, signal.SIG_IGN) for sig in INTERRUPTS} if main else {}
     try:
         terminate = getattr(pool, "terminate_workers", None)  # public from Python 3.14
         if terminate is not None:

@@ -31,3 +31,17 @@ def sigterm_raises() -> Iterator[None]:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+#: What stops a command: Ctrl-C and ``kill`` / ``timeout``.
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+
+
+def ignore_interrupts() -> None:
+    """From now on, this process ignores SIGINT and SIGTERM: for a program that has handled an
+    interrupt and is exiting.  The interpreter's exit puts SIGINT's default action back before it
+    ends, and a torch-sized exit takes long enough for the second press of a double Ctrl-C to land
+    there: the process was killed by the signal (exit -2, not 130) after its cleanup had run."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in INTERRUPTS:
+            signal.signal(sig, signal.SIG_IGN)

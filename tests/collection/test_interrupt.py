@@ -1,10 +1,12 @@
 """An interrupted multi-worker collection stops now: queued tasks are not run, running ones are
 stopped, and ``--resume`` finishes the dataset."""
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -73,6 +75,30 @@ def test_a_double_ctrl_c_stops_the_collection(tmp_path):
     time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGINT)
     _ended_early(proc, out, 130)
+
+
+@pytest.mark.slow
+def test_ctrl_c_pressed_until_the_command_ends(tmp_path):
+    """SIGINT every 20 ms from the first until the process is gone: each lands somewhere else (the
+    workers' stop, the folders' cleanup, the interpreter's exit).  The exit puts SIGINT's default
+    action back before torch's libraries unload: one landing there killed the process (-2)."""
+    out = tmp_path / "d"
+    proc = _started(out, start_new_session=True)
+    ticker = threading.Event()
+
+    def press():
+        while not ticker.is_set():
+            with contextlib.suppress(ProcessLookupError):  # gone: nothing left to interrupt
+                os.killpg(proc.pid, signal.SIGINT)
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=press, daemon=True)
+    thread.start()
+    try:
+        _ended_early(proc, out, 130)
+    finally:
+        ticker.set()
+        thread.join()
 
 
 @pytest.mark.slow
