@@ -76,6 +76,11 @@ class _Progress:
             desc=f"collect {config.env_id}" + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
         )
         self.tasks, self.frames, self.start = 0, 0, time.perf_counter()
+        if done:  # a resumed collection says what it goes on from (also without a bar)
+            print(
+                f"collect {config.env_id}: resuming, {done} of {total} task(s) already committed",
+                file=sys.stderr,
+            )
 
     def update(self, tasks: int) -> None:
         self.tasks += tasks

@@ -457,6 +457,9 @@ def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -
     trainer, provenance = build_trainer(cfg, model_config)
     if resume is not None:
         check_resume(resume, trainer.lhf_identity)
+        if trainer.is_world_process_zero():  # what a rerun goes on from: said, not guessed
+            step = json.loads((Path(resume) / TRAINER_STATE_FILE).read_text()).get("global_step")
+            print(f"lhf: resuming from {resume} (step {step} of {cfg.max_steps})", file=sys.stderr)
     t0 = time.perf_counter()
     result = trainer.train(resume_from_checkpoint=resume)
     wall = time.perf_counter() - t0

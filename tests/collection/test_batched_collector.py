@@ -22,7 +22,7 @@ def test_same_seed_same_data_and_chunks_matter(tmp_path):
     assert c.fingerprint != a.fingerprint  # documented: a chunk's random stream depends on its size
 
 
-def test_resume_redoes_whole_chunks_identically(tmp_path):
+def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
     out = tmp_path / "partial"
     from lhf_hf.collection.batched_collector import collect_chunk, resolve_ppo_backend
@@ -34,8 +34,11 @@ def test_resume_redoes_whole_chunks_identically(tmp_path):
         # chunk 0 (positions 0, 1) fully committed, chunk 1 (position 2) missing: as after a kill
         for p, th in zip([0, 1], collect_chunk(cfg, [5, 6], 0), strict=True):
             write_task(out, p, th, cfg.horizon)
+    capsys.readouterr()
     resumed = collect(cfg, out, resume=True, progress=False)
     assert resumed.fingerprint == full.fingerprint
+    # said: the chunk of positions 0-1 is committed, position 2 is redone
+    assert "resuming, 2 of 3 task(s) already committed" in capsys.readouterr().err
 
 
 def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeypatch):

@@ -222,7 +222,7 @@ def test_existing_output_needs_resume_or_overwrite(small_darkroom, tmp_path):
     assert (tmp_path / "m" / "model.safetensors").exists()
 
 
-def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path):
+def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path, capsys):
     cfg = dict(
         dataset=str(small_darkroom.root),
         objective="dicp",
@@ -240,7 +240,11 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
     (cut / "trainer_state.json").unlink()
     (cut / "model.safetensors").write_bytes((cut / "model.safetensors").read_bytes()[:100])
     assert last_checkpoint(part) == str(part / "checkpoint-6")
+    capsys.readouterr()
     resumed = train(TrainConfig(out=str(part), resume=True, **cfg))
+    err = capsys.readouterr().err
+    assert f"{cut} is incomplete" in err
+    assert f"resuming from {part / 'checkpoint-6'} (step 6 of 12)" in err
     a, b = load_file(full / "model.safetensors"), load_file(resumed / "model.safetensors")
     for k in a:
         torch.testing.assert_close(b[k], a[k], rtol=0, atol=0, msg=k)
