@@ -8,9 +8,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import nullcontext
 
 from lhf_hf import __version__
-from lhf_hf.utils.signals import Terminated, ignore_interrupts, sigterm_raises
+from lhf_hf.utils.signals import (
+    Terminated,
+    ignore_interrupts,
+    interrupts_raise_once,
+    sigterm_raises,
+)
 
 from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train, verify
 
@@ -32,24 +38,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv``, or this program's own (``argv`` None: the console script and
-    ``python -m lhf_hf``), and return its exit code.  As the program, once it has handled an
-    interrupt it ignores further ones while it exits, so that a double Ctrl-C ends it with 130 as a
-    single one does; called with ``argv`` (tests, other programs) it leaves signals as they were."""
+    ``python -m lhf_hf``), and return its exit code.  As the program, the first Ctrl-C or SIGTERM
+    interrupts the command and later ones are ignored (``utils.signals.interrupts_raise_once``):
+    its cleanup runs whole and it ends with 130 or 143 however often the key is pressed.  Called
+    with ``argv`` (tests, other programs), SIGTERM raises within the call only."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    program = argv is None
+    if program:
+        interrupts_raise_once()
     try:
-        with sigterm_raises():  # kill / timeout clean up like Ctrl-C
+        with nullcontext() if program else sigterm_raises():  # kill / timeout: as Ctrl-C
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        if argv is None:
+        if program:  # also after an interrupt some library code raised itself
             ignore_interrupts()
         print(f"lhf {args.command}: interrupted", file=sys.stderr)
         return 130
     except Terminated as exc:
-        if argv is None:
+        if program:
             ignore_interrupts()
         print(f"lhf {args.command}: terminated", file=sys.stderr)
         return int(exc.code)

@@ -155,14 +155,14 @@ def run_stages(
                             f"[lhf reproduce] no new stages; waiting for the {len(running)} "
                             "running one(s) to finish (their results are kept)"
                         )
-    except BaseException as exc:
+    except BaseException:
         # Interrupted: let the children stop, keep what they wrote (training resumes from its
-        # checkpoints on the next call).  Ctrl-C reaches them too (one process group); a SIGTERM
-        # (``kill``, ``timeout``; the CLI raises it as an exception) reached this process only,
-        # so it is passed on: a child would otherwise run on for the 30 s below, then be killed.
-        if not isinstance(exc, KeyboardInterrupt):
-            for child in running:
-                child.terminate()
+        # checkpoints on the next call).  Each is told once, here, with SIGTERM: a SIGTERM
+        # (``kill``, ``timeout``) reached this process only, and Ctrl-C, which reaches the whole
+        # process group, a stage process leaves to this one (``reproduce.worker``), so that its
+        # cleanup is not cut short by the next press.
+        for child in running:
+            child.terminate()
         if running:
             runner.echo(
                 f"[lhf reproduce] interrupted: waiting up to 30 s for {len(running)} running "

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 import torch
 
-from lhf_hf.utils.signals import sigterm_raises
+from lhf_hf.utils.signals import interrupts_raise_once, sigterm_raises
 
 from .experiment import load_experiment
 from .reproduce import plan_stages
@@ -42,8 +44,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     # The parent stops a running stage with terminate() (SIGTERM): raised as an exception, the
     # stage unwinds as under Ctrl-C (its output folder put back or left resumable, its collection
-    # workers stopped) instead of dying mid-write.
-    with sigterm_raises():
+    # workers stopped) instead of dying mid-write.  As a process of its own, the stage leaves
+    # Ctrl-C, which reaches the whole process group, to the parent (whose terminate() follows):
+    # it unwinds once, not again at each press (a repeated Ctrl-C cut its cleanup short).
+    program = argv is None
+    if program:
+        interrupts_raise_once()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with nullcontext() if program else sigterm_raises():
         StageRunner(a.work, echo=print).run(match[0])
     return 0
 

@@ -38,10 +38,28 @@ INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
 
 
 def ignore_interrupts() -> None:
-    """From now on, this process ignores SIGINT and SIGTERM: for a program that has handled an
-    interrupt and is exiting.  The interpreter's exit puts SIGINT's default action back before it
-    ends, and a torch-sized exit takes long enough for the second press of a double Ctrl-C to land
-    there: the process was killed by the signal (exit -2, not 130) after its cleanup had run."""
+    """From now on, this process ignores SIGINT and SIGTERM (main thread only: elsewhere a handler
+    cannot be set, and Python runs handlers in the main thread)."""
     if threading.current_thread() is threading.main_thread():
         for sig in INTERRUPTS:
             signal.signal(sig, signal.SIG_IGN)
+
+
+def _raise_once(signum, frame) -> None:
+    ignore_interrupts()
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Terminated(128 + signum)
+
+
+def interrupts_raise_once() -> None:
+    """For a program's entry (``lhf``, a ``lhf reproduce`` stage process): the first SIGINT raises
+    KeyboardInterrupt, the first SIGTERM ``Terminated``, and from then on both are ignored until the
+    process ends.  The cleanup the first one starts (workers stopped, output folders put back,
+    child stages waited for) then runs whole: a repeated Ctrl-C cut it short (a stage's folder
+    removed or left half put back), and one landing in the interpreter's exit, which puts SIGINT's
+    default action back first, killed the process after its cleanup (exit -2, not 130).  Not
+    undone: for a process that ends with its command, never for a library call."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in INTERRUPTS:
+            signal.signal(sig, _raise_once)
