@@ -28,6 +28,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -221,10 +222,32 @@ def _run(fn, ref, L: int, threads: int | None, pieces_per_thread: int = 8) -> No
     else:
         n = min(L, threads * pieces_per_thread)
         bounds = [L * i // n for i in range(n + 1)]
-        codes = list(_pool(threads).map(lambda i: fn(ref, bounds[i], bounds[i + 1]), range(n)))
+        pieces = [_pool(threads).submit(fn, ref, bounds[i], bounds[i + 1]) for i in range(n)]
+        try:
+            codes = [piece.result() for piece in pieces]
+        except BaseException:
+            _settle(pieces)
+            raise
     for code in codes:
         if code != 0:
             raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")
+
+
+def _settle(pieces: list) -> None:
+    """Interrupted (Ctrl-C) while the pieces run: drop the queued ones and wait for the running
+    ones before the caller unwinds.  A running piece reads and writes, through raw pointers, the
+    tensors the unwinding frees (and the interpreter's exit tears down): an interrupted batched
+    collection crashed with a segfault in the kernel after printing "interrupted".  A piece takes
+    milliseconds; a further interrupt meanwhile does not end the wait."""
+    for piece in pieces:
+        piece.cancel()
+    while True:
+        try:
+            while not all(piece.done() for piece in pieces):
+                time.sleep(0.005)
+            return
+        except BaseException:  # noqa: S112 (memory safety first; the first interrupt is re-raised)
+            continue
 
 
 def ppo_act(
