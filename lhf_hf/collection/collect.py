@@ -68,6 +68,12 @@ class _Progress:
         self, config: CollectConfig, total: int, done: int, ranks: _Ranks, enabled: bool, label: str
     ) -> None:
         self.config, self.enabled, self.label = config, enabled, label
+        if done:  # a resumed collection says what it goes on from (also without a bar; said
+            # before the bar is drawn, not onto its line)
+            print(
+                f"collect {config.env_id}: resuming, {done} of {total} task(s) already committed",
+                file=sys.stderr,
+            )
         self.bar = tqdm(
             total=total,
             initial=done,
@@ -76,11 +82,6 @@ class _Progress:
             desc=f"collect {config.env_id}" + (f" [rank {ranks.rank}]" if ranks.world > 1 else ""),
         )
         self.tasks, self.frames, self.start = 0, 0, time.perf_counter()
-        if done:  # a resumed collection says what it goes on from (also without a bar)
-            print(
-                f"collect {config.env_id}: resuming, {done} of {total} task(s) already committed",
-                file=sys.stderr,
-            )
 
     def update(self, tasks: int) -> None:
         self.tasks += tasks
