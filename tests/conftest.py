@@ -53,3 +53,14 @@ def learned_darkroom(tmp_path_factory):
         env_id="darkroom", tasks="3,40", histories=4, steps=1000, collector="batched", seed=0
     )
     return collect(cfg, root, progress=False)
+
+
+@pytest.fixture
+def handlers():
+    """The test process's SIGINT/SIGTERM handlers, put back afterwards (tests that send signals)."""
+    import signal
+
+    held = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield held
+    for sig, handler in held.items():
+        signal.signal(sig, handler)

@@ -11,15 +11,6 @@ from lhf_hf.cli import envs
 from lhf_hf.cli.main import main
 
 
-@pytest.fixture
-def handlers():
-    """The test process's SIGINT/SIGTERM handlers, put back afterwards."""
-    held = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    yield held
-    for sig, handler in held.items():
-        signal.signal(sig, handler)
-
-
 def _pressed(signum, cleaned):
     """A command that gets ``signum``, then again and again while it cleans up."""
 

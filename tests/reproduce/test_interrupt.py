@@ -14,21 +14,16 @@ import pytest
 import yaml
 
 from lhf_hf.training.trainer import last_checkpoint
+from tests.reproduce.test_reproduce import TINY
 
 SPEC = {
-    "title": "interrupted",
-    "paper_table": "a test",
-    "envs": ["darkroom"],
-    "objectives": ["ad"],
-    "collect": {"collector": "batched"},
-    "paper": {"darkroom": {"ad": 25.1}},
+    **TINY,
     "presets": {
         "quick": {
+            **TINY["presets"]["quick"],
             "runs": 1,
-            "collect": {"tasks": "train:2", "histories": 4, "steps": 200},
             # long enough to be interrupted, a checkpoint early
             "train": {"preset": "tiny", "max_steps": 100000, "batch_size": 4, "save_steps": 5},
-            "evaluate": {"episodes": 2},
         }
     },
 }

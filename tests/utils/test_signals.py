@@ -9,15 +9,6 @@ import pytest
 from lhf_hf.utils.signals import Terminated, interrupts_raise_once, sigterm_raises
 
 
-@pytest.fixture
-def handlers():
-    """The test process's SIGINT/SIGTERM handlers, put back afterwards."""
-    held = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    yield held
-    for sig, handler in held.items():
-        signal.signal(sig, handler)
-
-
 def _wait_for_signal() -> None:
     time.sleep(5)  # a delivered signal's handler runs here, in the main thread
     raise AssertionError("the signal was not raised")
