@@ -9,7 +9,6 @@ Tasks are spread over ``config.workers`` processes and, under ``accelerate launc
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import threading
 import time
@@ -33,7 +32,7 @@ from lhf_hf.histories.writer import (
     task_done,
     write_task,
 )
-from lhf_hf.utils.signals import INTERRUPTS
+from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
 
 from . import backend_verdict
@@ -193,12 +192,8 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
     minutes, and Ctrl-C only failed the tasks in flight: a worker takes the next one after it).
     A stopped task has not committed; ``resume`` redoes it."""
     # A second Ctrl-C (a double press; `timeout` passing one on) must not cut this short: the
-    # workers would go on with the queued tasks while the exit waits for them.  Ignored until
-    # done (a handler is the main thread's; a signal mask is per thread, and CPython runs the
-    # handler in the main thread whichever thread the kernel picks).
-    main = threading.current_thread() is threading.main_thread()
-    held = {sig: signal.signal(sig, signal.SIG_IGN) for sig in INTERRUPTS} if main else {}
-    try:
+    # workers would go on with the queued tasks while the exit waits for them.
+    with interrupts_ignored():
         terminate = getattr(pool, "terminate_workers", None)  # public from Python 3.14
         if terminate is not None:
             terminate()
@@ -209,9 +204,6 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in workers:
             proc.join(timeout=30)
-    finally:
-        for sig, handler in held.items():
-            signal.signal(sig, handler)
 
 
 def exit_with_parent(parent: int, period_s: float = 0.5) -> None:

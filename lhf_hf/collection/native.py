@@ -28,13 +28,13 @@ import re
 import shutil
 import subprocess
 import tempfile
-import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import torch
 
 from lhf_hf.utils.io import sha256_file
+from lhf_hf.utils.signals import interrupts_ignored
 
 logger = logging.getLogger(__name__)
 
@@ -238,16 +238,11 @@ def _settle(pieces: list) -> None:
     ones before the caller unwinds.  A running piece reads and writes, through raw pointers, the
     tensors the unwinding frees (and the interpreter's exit tears down): an interrupted batched
     collection crashed with a segfault in the kernel after printing "interrupted".  A piece takes
-    milliseconds; a further interrupt meanwhile does not end the wait."""
-    for piece in pieces:
-        piece.cancel()
-    while True:
-        try:
-            while not all(piece.done() for piece in pieces):
-                time.sleep(0.005)
-            return
-        except BaseException:  # noqa: S112 (memory safety first; the first interrupt is re-raised)
-            continue
+    milliseconds; a further interrupt meanwhile is ignored."""
+    with interrupts_ignored():
+        for piece in pieces:
+            piece.cancel()
+        wait(pieces)
 
 
 def ppo_act(

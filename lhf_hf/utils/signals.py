@@ -45,6 +45,21 @@ def ignore_interrupts() -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
+@contextmanager
+def interrupts_ignored() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM are ignored (main thread only, as above; elsewhere no
+    handler runs anyway); the previous handlers are restored.  For a cleanup that must not be cut
+    short, e.g. stopping worker processes or waiting for native threads."""
+    held = {}
+    if threading.current_thread() is threading.main_thread():
+        held = {sig: signal.signal(sig, signal.SIG_IGN) for sig in INTERRUPTS}
+    try:
+        yield
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
+
+
 def _raise_once(signum, frame) -> None:
     ignore_interrupts()
     if signum == signal.SIGINT:
