@@ -59,6 +59,15 @@ class _Ranks:
         if self.state is not None:
             self.state.wait_for_everyone()
 
+    def end(self) -> None:
+        """The last barrier, then the process group is destroyed: a rank that exits with it alive
+        can abort in interpreter shutdown (gloo's threads: "terminate called without an active
+        exception", SIGABRT; torch asks for ``destroy_process_group`` before exit), and the
+        launcher then kills rank 0 while it writes the dataset."""
+        if self.state is not None:
+            self.state.wait_for_everyone()
+            self.state.destroy_process_group()
+
 
 class _Progress:
     """The progress bar of a collection: tasks done, transitions/s, ETA; a summary line at the end."""
@@ -306,16 +315,17 @@ def collect(
             claim.enter_context(
                 claim_dataset(out, config.identity(), resume=resume, overwrite=overwrite)
             )
-        ranks.barrier()
         if complete:
+            ranks.end()
             return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]
+        ranks.barrier()
         return _collect_into(config, out, ranks, progress)
 
 
 def _collect_into(config: CollectConfig, out: Path, ranks: _Ranks, progress: bool):
     tasks = list(config.tasks)
     RUNNERS[config.collector](config, out, tasks, ranks, progress)
-    ranks.barrier()
+    ranks.end()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]
     names = get_spec(config.env_id).state_names

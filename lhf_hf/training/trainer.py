@@ -449,22 +449,29 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
         return _train_into(cfg, model_config, out, resume)
 
 
+def _end_ranks(trainer: Trainer) -> None:
+    """Under a launcher: every rank waits until rank 0 has written the model, then the process
+    group is destroyed while the interpreter is whole.
+
+    Without this, rank 1 returned right after ``trainer.train()`` and exited while rank 0 wrote:
+    gloo's worker threads were still freeing the last collective's work (Trainer's closing
+    all_gather of the FLOs), which takes the GIL, while the main thread, holding it, joined them
+    in the process group's destructor.  That aborted rank 1 in interpreter shutdown ("terminate
+    called without an active exception", SIGABRT; torch asks for ``destroy_process_group`` before
+    exit) or deadlocked it, and the launcher then killed rank 0 mid-write.  While a rank waits in
+    the barrier it holds no GIL, so those threads finish first; a barrier's own work holds no
+    tensors.  Single-process runs: nothing to do."""
+    if trainer.args.world_size > 1:
+        trainer.accelerator.wait_for_everyone()
+        trainer.accelerator.end_training()
+
+
 #: Files of a model folder written before output markers existed (``utils.outputs``).
 MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
 
 
-def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> Path:
-    trainer, provenance = build_trainer(cfg, model_config)
-    if resume is not None:
-        check_resume(resume, trainer.lhf_identity)
-        if trainer.is_world_process_zero():  # what a rerun goes on from: said, not guessed
-            step = json.loads((Path(resume) / TRAINER_STATE_FILE).read_text()).get("global_step")
-            print(f"lhf: resuming from {resume} (step {step} of {cfg.max_steps})", file=sys.stderr)
-    t0 = time.perf_counter()
-    result = trainer.train(resume_from_checkpoint=resume)
-    wall = time.perf_counter() - t0
-    if not trainer.is_world_process_zero():
-        return out
+def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resume, wall) -> None:
+    """Rank 0: the final weights, ``train_config.json``, the loss log and plot, and the card."""
     trainer.save_model(str(out))
     history = [r for r in trainer.state.log_history if "loss" in r]
     provenance.update(
@@ -485,7 +492,22 @@ def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -
 
     plot_loss(trainer.state.log_history, out / LOSS_PLOT)
     write_model_card(out, trainer.model.config, provenance)
-    if cfg.push_to_hub:
+
+
+def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> Path:
+    trainer, provenance = build_trainer(cfg, model_config)
+    if resume is not None:
+        check_resume(resume, trainer.lhf_identity)
+        if trainer.is_world_process_zero():  # what a rerun goes on from: said, not guessed
+            step = json.loads((Path(resume) / TRAINER_STATE_FILE).read_text()).get("global_step")
+            print(f"lhf: resuming from {resume} (step {step} of {cfg.max_steps})", file=sys.stderr)
+    t0 = time.perf_counter()
+    result = trainer.train(resume_from_checkpoint=resume)
+    wall = time.perf_counter() - t0
+    if trainer.is_world_process_zero():
+        _write_model(trainer, cfg, out, provenance, result, resume, wall)
+    _end_ranks(trainer)
+    if cfg.push_to_hub and trainer.is_world_process_zero():
         trainer.lhf_card = (trainer.model.config, provenance)
         trainer.push_to_hub(
             commit_message=f"lhf train: final model, step {trainer.state.global_step}"

@@ -34,8 +34,7 @@ def test_accelerate_launch_two_ranks(tmp_path):
             "launch",
             "--config_file",
             str(ROOT / "training/accelerate/cpu_2proc.yaml"),
-            "-m",
-            "lhf_hf",
+            str(ROOT / "tests/launch_probe.py"),  # lhf as a program, saying how each rank ended
             *ARGS,
             "--out",
             str(tmp_path / "ranks"),
@@ -46,6 +45,8 @@ def test_accelerate_launch_two_ranks(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-2000:]
     assert "[rank 1] committed" in r.stdout, "two processes should have run"
+    for rank in (0, 1):  # each rank destroyed its process group before exiting
+        assert f"rank {rank}: process group alive at exit: False" in r.stderr, r.stderr[-2000:]
     subprocess.run(
         [sys.executable, "-m", "lhf_hf", *ARGS, "--out", str(tmp_path / "one")],
         check=True,

@@ -351,13 +351,23 @@ def test_two_accelerate_processes_report_the_one_process_losses(small_darkroom, 
         "29547",
     ]
     run = subprocess.run(
-        [*launcher, "-m", "lhf_hf", "train", *common, "--out", str(tmp_path / "two")],
+        # lhf as a program, saying at exit whether each rank's process group was destroyed
+        [
+            *launcher,
+            str(REPO / "tests/launch_probe.py"),
+            "train",
+            *common,
+            "--out",
+            str(tmp_path / "two"),
+        ],
         env=env,
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert run.returncode == 0, run.stderr[-3000:]
+    for rank in (0, 1):  # a rank exiting with a live gloo group aborted or hung (SIGABRT in CI)
+        assert f"rank {rank}: process group alive at exit: False" in run.stderr, run.stderr[-3000:]
     prov = json.loads((tmp_path / "two" / "train_config.json").read_text())
     assert prov["world_size"] == 2 and prov["per_device_batch_size"] == 4
     np.testing.assert_allclose(losses(tmp_path / "two"), losses(tmp_path / "one"), rtol=1e-4)
