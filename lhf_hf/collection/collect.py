@@ -310,6 +310,13 @@ def collect(
     ranks = _Ranks()
     # every rank decides the same way (no rank left at a barrier)
     complete = resume and is_complete(out)
+    if resume and ranks.rank == 0 and not (out / C.CONFIG_PATH).is_file():
+        # a fresh start is what `lhf reproduce` (resume if present) wants, but a user who typed
+        # --resume expected a folder: said, not silent (a wrong --out shows here)
+        print(
+            f"collect {config.env_id}: --resume: {out} holds no collection yet; starting one",
+            file=sys.stderr,
+        )
     with ExitStack() as claim:
         if ranks.rank == 0:  # rank 0 holds the folder; a complete dataset is only re-opened
             claim.enter_context(

@@ -23,7 +23,9 @@ def test_same_seed_same_data_and_chunks_matter(tmp_path):
 
 
 def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
-    full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
+    # --resume with nothing to resume starts the collection, and says so
+    full = collect(CollectConfig(**CFG), tmp_path / "full", resume=True, progress=False)
+    assert f"--resume: {tmp_path / 'full'} holds no collection yet" in capsys.readouterr().err
     out = tmp_path / "partial"
     from lhf_hf.collection.batched_collector import collect_chunk, resolve_ppo_backend
     from lhf_hf.histories.writer import claim_dataset, write_task
@@ -38,7 +40,8 @@ def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     resumed = collect(cfg, out, resume=True, progress=False)
     assert resumed.fingerprint == full.fingerprint
     # said: the chunk of positions 0-1 is committed, position 2 is redone
-    assert "resuming, 2 of 3 task(s) already committed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "resuming, 2 of 3 task(s) already committed" in err and "no collection yet" not in err
 
 
 def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeypatch):
