@@ -16,8 +16,9 @@ evaluate, compare, reproduce):
   ``lhf verify`` find what changed since.
 - ``overwrite`` is atomic at the folder level: the old artifact is renamed aside
   (``.NAME.replaced-PID``), the new one is written under the name, and the old one is deleted only
-  once the command succeeded; an error or Ctrl-C puts the old one back.  A killed process leaves
-  the old artifact beside the new one (the next writer names it).
+  once the command succeeded; an error or Ctrl-C puts the old one back (if it was deleted
+  meanwhile, the run's unfinished artifact stays, said, and the error is the original one).  A
+  killed process leaves the old artifact beside the new one (the next writer names it).
 - A run that fails after writing into a folder it started empty leaves it marked in progress
   (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.
 """
@@ -275,9 +276,15 @@ def output_folder(
         try:
             yield real
         except BaseException:
-            if replaced is not None:  # put the old artifact back: nothing lost
+            if replaced is not None and replaced.is_dir():  # put the old one back: nothing lost
                 shutil.rmtree(real, ignore_errors=True)
                 os.replace(replaced, real)
+            elif replaced is not None:  # someone deleted it: keep this run's part, and the error
+                print(
+                    f"lhf: note: {replaced} (the earlier {kind}, set aside) was removed while this "
+                    f"run wrote: {out} keeps this run's unfinished {kind} (--resume or --overwrite)",
+                    file=sys.stderr,
+                )
             elif was_empty and {p.name for p in real.iterdir()} <= {MARKER}:
                 # failed before writing: leave nothing (an empty folder given to it stays empty)
                 if created:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import stat
 import subprocess
 import sys
@@ -129,6 +130,22 @@ def test_a_failed_overwrite_puts_the_old_artifact_back(tmp_path):
                 raise error
         assert (m / "w").read_text() == "old"
         assert not list(tmp_path.glob(".m.replaced-*"))
+
+
+def test_a_failed_overwrite_whose_old_artifact_was_deleted_keeps_its_own_error(tmp_path, capsys):
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("old")
+    with pytest.raises(KeyboardInterrupt):  # not a FileNotFoundError from putting it back
+        with output_folder(m, "model", overwrite=True):
+            (m / "w").write_text("half-written")
+            for aside in tmp_path.glob(".m.replaced-*"):  # deleted by hand mid-run
+                shutil.rmtree(aside)
+            raise KeyboardInterrupt
+    assert "was removed while this run wrote" in capsys.readouterr().err
+    assert (m / "w").read_text() == "half-written"  # this run's part stays, marked in progress
+    assert "files" not in json.loads((m / MARKER).read_text())
+    with output_folder(m, "model", resume=True):
+        pass
 
 
 def test_a_failure_before_writing_leaves_no_folder(tmp_path):
