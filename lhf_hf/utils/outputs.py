@@ -258,7 +258,9 @@ def output_folder(
         preflight(out, kind, resumable=resumable, **checks)  # again, now that we hold the lock
         _stale_note(real, kind)
         replaced = None
-        if overwrite and real.is_dir() and _content(real):
+        # a folder holding only an in-progress marker (a run killed before it wrote) is reused,
+        # not set aside: nothing in it to keep, and repeated kills would pile up empty asides
+        if overwrite and real.is_dir() and [p for p in _content(real) if p.name != MARKER]:
             replaced = real.parent / f".{real.name}.replaced-{os.getpid()}"
             os.replace(real, replaced)  # atomic: the old artifact is whole until success
         created = not real.exists()

@@ -148,6 +148,16 @@ def test_a_failed_overwrite_whose_old_artifact_was_deleted_keeps_its_own_error(t
         pass
 
 
+def test_an_overwrite_of_a_marker_only_folder_sets_nothing_aside(tmp_path):
+    out = tmp_path / "r"
+    out.mkdir()
+    (out / MARKER).write_text(json.dumps({"kind": "report", "lhf_hf": "0"}))  # a run killed early
+    with output_folder(out, "report", overwrite=True) as r:
+        assert not list(tmp_path.glob(".r.replaced-*"))
+        (r / "report.md").write_text("new")
+    assert _files(out) == [MARKER, "report.md"] and not list(tmp_path.glob(".r.replaced-*"))
+
+
 def test_a_failure_before_writing_leaves_no_folder(tmp_path):
     with pytest.raises(ValueError):
         with output_folder(tmp_path / "new", "evaluation"):
