@@ -310,18 +310,19 @@ def collect(
     ranks = _Ranks()
     # every rank decides the same way (no rank left at a barrier)
     complete = resume and is_complete(out)
-    if resume and ranks.rank == 0 and not (out / C.CONFIG_PATH).is_file():
-        # a fresh start is what `lhf reproduce` (resume if present) wants, but a user who typed
-        # --resume expected a folder: said, not silent (a wrong --out shows here)
-        print(
-            f"collect {config.env_id}: --resume: {out} holds no collection yet; starting one",
-            file=sys.stderr,
-        )
+    started = (out / C.CONFIG_PATH).is_file()
     with ExitStack() as claim:
         if ranks.rank == 0:  # rank 0 holds the folder; a complete dataset is only re-opened
             claim.enter_context(
                 claim_dataset(out, config.identity(), resume=resume, overwrite=overwrite)
             )
+            if resume and not started and not complete:
+                # a fresh start is what `lhf reproduce` (resume if present) wants, but a user
+                # who typed --resume expected a folder: said, not silent (a wrong --out shows)
+                print(
+                    f"collect {config.env_id}: --resume: {out} held no collection; starting one",
+                    file=sys.stderr,
+                )
         if complete:
             ranks.end()
             return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]

@@ -451,16 +451,17 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
 
 def _end_ranks(trainer: Trainer) -> None:
     """Under a launcher: every rank waits until rank 0 has written the model, then the process
-    group is destroyed while the interpreter is whole.
+    group is unregistered (``destroy_process_group``, as torch asks before exit).
 
-    Without this, rank 1 returned right after ``trainer.train()`` and exited while rank 0 wrote:
-    gloo's worker threads were still freeing the last collective's work (Trainer's closing
-    all_gather of the FLOs), which takes the GIL, while the main thread, holding it, joined them
-    in the process group's destructor.  That aborted rank 1 in interpreter shutdown ("terminate
-    called without an active exception", SIGABRT; torch asks for ``destroy_process_group`` before
-    exit) or deadlocked it, and the launcher then killed rank 0 mid-write.  While a rank waits in
-    the barrier it holds no GIL, so those threads finish first; a barrier's own work holds no
-    tensors.  Single-process runs: nothing to do."""
+    Without this, rank 1 returned right after ``trainer.train()`` and exited while rank 0 wrote,
+    and a rank could abort in interpreter shutdown (CI: "terminate called without an active
+    exception", SIGABRT, after which the launcher killed rank 0 mid-write) or deadlock (seen
+    here: the main thread, holding the GIL, joined gloo's worker threads in the group's
+    destructor while one of them released a collective's work, whose tensors need the GIL to be
+    freed).  The barrier is what makes exit safe: once every rank has passed it no collective is
+    in flight, and a barrier's own work holds no Python tensor.  DDP's reducer keeps the group
+    object alive, so its threads are still joined at exit, with nothing left to release.
+    Single-process runs: nothing to do."""
     if trainer.args.world_size > 1:
         trainer.accelerator.wait_for_everyone()
         trainer.accelerator.end_training()
@@ -472,7 +473,7 @@ MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
 
 def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resume, wall) -> None:
     """Rank 0: the final weights, ``train_config.json``, the loss log and plot, and the card."""
-    trainer.save_model(str(out))
+    trainer.save_model(str(out), _internal_call=True)  # not pushed: the folder is not whole yet
     history = [r for r in trainer.state.log_history if "loss" in r]
     provenance.update(
         {
@@ -504,9 +505,15 @@ def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -
     t0 = time.perf_counter()
     result = trainer.train(resume_from_checkpoint=resume)
     wall = time.perf_counter() - t0
-    if trainer.is_world_process_zero():
-        _write_model(trainer, cfg, out, provenance, result, resume, wall)
-    _end_ranks(trainer)
+    try:
+        if trainer.is_world_process_zero():
+            _write_model(trainer, cfg, out, provenance, result, resume, wall)
+    finally:  # a failed write still releases the other ranks (they exit; rank 0 raises)
+        _end_ranks(trainer)
+    # Rank 0 alone, after the group is gone: Trainer.push_to_hub -> save_model(_internal_call)
+    # -> _save -> save_pretrained needs no collective for a DDP model on one rank (checked for
+    # transformers 5.x; FSDP / DeepSpeed / tensor parallel are not used here), and an upload
+    # longer than the group's timeout would otherwise fail rank 1 at the barrier.
     if cfg.push_to_hub and trainer.is_world_process_zero():
         trainer.lhf_card = (trainer.model.config, provenance)
         trainer.push_to_hub(

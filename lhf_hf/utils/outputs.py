@@ -170,6 +170,26 @@ def _stale_replacements(out: Path) -> list[Path]:
     return sorted(out.parent.glob(f".{out.name}.replaced-*"))
 
 
+def _only_in_progress_marker(path: Path) -> bool:
+    """The folder holds nothing but a marker without a manifest (a run that wrote nothing)."""
+    if [p.name for p in _content(path)] != [MARKER]:
+        return False
+    try:
+        return "files" not in json.loads((path / MARKER).read_text())
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def _aside(real: Path) -> Path:
+    """A free ``.NAME.replaced-PID`` name (PIDs repeat after a restart: ``-2``, ``-3`` ...)."""
+    base = real.parent / f".{real.name}.replaced-{os.getpid()}"
+    aside, n = base, 1
+    while aside.exists():
+        n += 1
+        aside = base.with_name(f"{base.name}-{n}")
+    return aside
+
+
 def _content(path: Path) -> list[Path]:
     """What a folder holds, lock files of nested outputs left out (they are not content)."""
     return [p for p in path.iterdir() if not (p.name.startswith(".") and p.name.endswith(".lock"))]
@@ -260,8 +280,8 @@ def output_folder(
         replaced = None
         # a folder holding only an in-progress marker (a run killed before it wrote) is reused,
         # not set aside: nothing in it to keep, and repeated kills would pile up empty asides
-        if overwrite and real.is_dir() and [p for p in _content(real) if p.name != MARKER]:
-            replaced = real.parent / f".{real.name}.replaced-{os.getpid()}"
+        if overwrite and real.is_dir() and _content(real) and not _only_in_progress_marker(real):
+            replaced = _aside(real)
             os.replace(real, replaced)  # atomic: the old artifact is whole until success
         created = not real.exists()
         was_empty = created or not _content(real)
@@ -278,13 +298,14 @@ def output_folder(
         try:
             yield real
         except BaseException:
-            if replaced is not None and replaced.is_dir():  # put the old one back: nothing lost
+            if replaced is not None and (replaced / MARKER).is_file():  # put it back: nothing lost
                 shutil.rmtree(real, ignore_errors=True)
                 os.replace(replaced, real)
-            elif replaced is not None:  # someone deleted it: keep this run's part, and the error
+            elif replaced is not None:  # someone deleted it (or part): keep this run's part
+                hint = "--resume or --overwrite" if resumable else "--overwrite"
                 print(
                     f"lhf: note: {replaced} (the earlier {kind}, set aside) was removed while this "
-                    f"run wrote: {out} keeps this run's unfinished {kind} (--resume or --overwrite)",
+                    f"run wrote: {out} keeps this run's unfinished {kind} ({hint})",
                     file=sys.stderr,
                 )
             elif was_empty and {p.name for p in real.iterdir()} <= {MARKER}:

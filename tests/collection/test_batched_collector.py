@@ -25,7 +25,9 @@ def test_same_seed_same_data_and_chunks_matter(tmp_path):
 def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     # --resume with nothing to resume starts the collection, and says so
     full = collect(CollectConfig(**CFG), tmp_path / "full", resume=True, progress=False)
-    assert f"--resume: {tmp_path / 'full'} holds no collection yet" in capsys.readouterr().err
+    assert (
+        f"--resume: {tmp_path / 'full'} held no collection; starting one" in capsys.readouterr().err
+    )
     out = tmp_path / "partial"
     from lhf_hf.collection.batched_collector import collect_chunk, resolve_ppo_backend
     from lhf_hf.histories.writer import claim_dataset, write_task
@@ -41,7 +43,7 @@ def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     assert resumed.fingerprint == full.fingerprint
     # said: the chunk of positions 0-1 is committed, position 2 is redone
     err = capsys.readouterr().err
-    assert "resuming, 2 of 3 task(s) already committed" in err and "no collection yet" not in err
+    assert "resuming, 2 of 3 task(s) already committed" in err and "held no collection" not in err
 
 
 def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeypatch):

@@ -156,6 +156,28 @@ def test_an_overwrite_of_a_marker_only_folder_sets_nothing_aside(tmp_path):
         assert not list(tmp_path.glob(".r.replaced-*"))
         (r / "report.md").write_text("new")
     assert _files(out) == [MARKER, "report.md"] and not list(tmp_path.glob(".r.replaced-*"))
+    # a finished artifact that happens to hold no files is set aside and put back as before
+    empty = tmp_path / "e"
+    with output_folder(empty, "report"):
+        pass
+    done = (empty / MARKER).read_text()
+    with pytest.raises(KeyboardInterrupt):
+        with output_folder(empty, "report", overwrite=True) as r:
+            assert list(tmp_path.glob(".e.replaced-*"))
+            (r / "report.md").write_text("half")
+            raise KeyboardInterrupt
+    assert _files(empty) == [MARKER] and (empty / MARKER).read_text() == done
+
+
+def test_an_aside_name_left_by_an_earlier_process_with_our_pid_is_not_reused(tmp_path):
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("old")
+    stale = tmp_path / f".m.replaced-{os.getpid()}"  # a killed run's, before a restart
+    stale.mkdir()
+    (stale / "w").write_text("older")
+    with output_folder(m, "model", overwrite=True):
+        (m / "w").write_text("new")
+    assert (m / "w").read_text() == "new" and (stale / "w").read_text() == "older"
 
 
 def test_a_failure_before_writing_leaves_no_folder(tmp_path):
