@@ -1,7 +1,7 @@
 """``lhf`` as a program (``python -m lhf_hf``) that says at exit whether this rank's process group
 is still alive: tests launch it with ``accelerate launch`` to check that every rank destroyed the
 group before exiting (torch requires it; a gloo group left to interpreter shutdown can abort or
-deadlock the rank, see ``training.trainer._end_ranks``)."""
+deadlock the rank, see ``utils.launcher.end_ranks``)."""
 
 import atexit
 import os

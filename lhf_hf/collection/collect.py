@@ -32,6 +32,7 @@ from lhf_hf.histories.writer import (
     task_done,
     write_task,
 )
+from lhf_hf.utils.launcher import end_ranks
 from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
 
@@ -58,15 +59,6 @@ class _Ranks:
     def barrier(self) -> None:
         if self.state is not None:
             self.state.wait_for_everyone()
-
-    def end(self) -> None:
-        """The last barrier, then the process group is destroyed: a rank that exits with it alive
-        can abort in interpreter shutdown (gloo's threads: "terminate called without an active
-        exception", SIGABRT; torch asks for ``destroy_process_group`` before exit), and the
-        launcher then kills rank 0 while it writes the dataset."""
-        if self.state is not None:
-            self.state.wait_for_everyone()
-            self.state.destroy_process_group()
 
 
 class _Progress:
@@ -324,7 +316,7 @@ def collect(
                     file=sys.stderr,
                 )
         if complete:
-            ranks.end()
+            end_ranks()
             return load_histories(out) if ranks.rank == 0 else None  # type: ignore[return-value]
         ranks.barrier()
         return _collect_into(config, out, ranks, progress)
@@ -333,7 +325,7 @@ def collect(
 def _collect_into(config: CollectConfig, out: Path, ranks: _Ranks, progress: bool):
     tasks = list(config.tasks)
     RUNNERS[config.collector](config, out, tasks, ranks, progress)
-    ranks.end()
+    end_ranks()
     if ranks.rank != 0:
         return None  # type: ignore[return-value]
     names = get_spec(config.env_id).state_names

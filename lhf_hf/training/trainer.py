@@ -30,6 +30,7 @@ from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
 from lhf_hf.utils.hub import resolve, source_of
 from lhf_hf.utils.io import sha256_file, write_json_atomic, write_text_atomic
+from lhf_hf.utils.launcher import end_ranks
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
@@ -449,24 +450,6 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
         return _train_into(cfg, model_config, out, resume)
 
 
-def _end_ranks(trainer: Trainer) -> None:
-    """Under a launcher: every rank waits until rank 0 has written the model, then the process
-    group is unregistered (``destroy_process_group``, as torch asks before exit).
-
-    Without this, rank 1 returned right after ``trainer.train()`` and exited while rank 0 wrote,
-    and a rank could abort in interpreter shutdown (CI: "terminate called without an active
-    exception", SIGABRT, after which the launcher killed rank 0 mid-write) or deadlock (seen
-    here: the main thread, holding the GIL, joined gloo's worker threads in the group's
-    destructor while one of them released a collective's work, whose tensors need the GIL to be
-    freed).  The barrier is what makes exit safe: once every rank has passed it no collective is
-    in flight, and a barrier's own work holds no Python tensor.  DDP's reducer keeps the group
-    object alive, so its threads are still joined at exit, with nothing left to release.
-    Single-process runs: nothing to do."""
-    if trainer.args.world_size > 1:
-        trainer.accelerator.wait_for_everyone()
-        trainer.accelerator.end_training()
-
-
 #: Files of a model folder written before output markers existed (``utils.outputs``).
 MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
 
@@ -508,8 +491,8 @@ def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -
     try:
         if trainer.is_world_process_zero():
             _write_model(trainer, cfg, out, provenance, result, resume, wall)
-    finally:  # a failed write still releases the other ranks (they exit; rank 0 raises)
-        _end_ranks(trainer)
+    finally:  # after rank 0's writes; a failed one still releases the other ranks
+        end_ranks()
     # Rank 0 alone, after the group is gone: Trainer.push_to_hub -> save_model(_internal_call)
     # -> _save -> save_pretrained needs no collective for a DDP model on one rank (checked for
     # transformers 5.x; FSDP / DeepSpeed / tensor parallel are not used here), and an upload
