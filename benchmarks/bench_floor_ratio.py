@@ -5,7 +5,7 @@
 This VM's speed drifts by tens of percent within minutes (the batched-matmul rate went from 141 to
 203 GFLOP/s over one 72-minute collection), so a floor measured at another time says little about a
 run. Here each cycle measures the (100x64)@(64x64) bmm rate (best of 5), collects and writes one chunk
-of ``--tasks-per-chunk`` Key-to-Door tasks with ``lhf_hf.collection.collect`` (the CLI's path,
+of ``--tasks-per-chunk`` Key-to-Door tasks with ``lhf_hf.collection.collect()`` (the CLI's path,
 writing and the chunk's assembly included), and measures the rate again; the chunk's floor is its
 PPO-update FLOPs at the better of the two adjacent rates (the stricter floor). The full dataset is
 6,561 / tasks-per-chunk such chunks, so the per-chunk ratio is the full run's ratio.

@@ -7,7 +7,7 @@ imports with torch alone (e.g. on a GPU machine without Stable-Baselines3 or ``d
 from importlib import import_module
 
 _EXPORTS = {
-    "collect": ".collect",
+    "collect": ".driver",
     "RecordingVecEnv": ".recorder",
     "collect_task_histories": ".sb3_collector",
     "plan_task": ".sb3_collector",
@@ -19,8 +19,6 @@ __all__ = sorted(_EXPORTS)
 def __getattr__(name: str):
     if name in _EXPORTS:
         value = getattr(import_module(_EXPORTS[name], __name__), name)
-        # importing the submodule ``.collect`` bound the package attribute ``collect`` to that
-        # module: rebind it to the function, as the eager ``from .collect import collect`` did
-        globals()[name] = value
+        globals()[name] = value  # looked up once
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

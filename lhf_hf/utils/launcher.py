@@ -23,5 +23,19 @@ def end_ranks() -> None:
     from accelerate import PartialState  # deferred: 1.4 s, needed under a launcher only
 
     state = PartialState()  # the shared state the Trainer or the collection set up
-    state.wait_for_everyone()
+    wait_for_ranks(state)
     state.destroy_process_group()
+
+
+def wait_for_ranks(state) -> None:
+    """``state.wait_for_everyone()`` (an accelerate ``PartialState``), saying what it means when
+    another rank is gone.  A rank that failed exits with its own error; the ranks waiting for it
+    then got gloo's "Connection closed by peer [127.0.0.1]:PORT ..." as their only line, which
+    reads as a network fault rather than as the other rank's error."""
+    try:
+        state.wait_for_everyone()
+    except RuntimeError as exc:  # torch.distributed.DistBackendError is one
+        raise RuntimeError(
+            f"rank {state.process_index} of {state.num_processes}: another rank stopped before "
+            f"reaching this point (its own error is printed above)"
+        ) from exc

@@ -53,8 +53,7 @@ def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeyp
 
     from lhf_hf.histories.writer import task_done, write_task
 
-    # the module, not the function of the same name that lhf_hf.collection exports
-    collect_mod = importlib.import_module("lhf_hf.collection.collect")
+    collect_mod = importlib.import_module("lhf_hf.collection.driver")
 
     full = collect(CollectConfig(**CFG), tmp_path / "full", progress=False)
     cfg = CollectConfig(**CFG)

@@ -1,5 +1,6 @@
 """Under ``accelerate launch`` (2 CPU processes) ranks split the tasks; the data is the same."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -8,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from lhf_hf.histories import load_histories
+from lhf_hf.histories.writer import is_complete
 
 ROOT = Path(__file__).resolve().parents[2]
 ARGS = [
@@ -25,10 +27,9 @@ ARGS = [
 ]
 
 
-@pytest.mark.slow
-def test_accelerate_launch_two_ranks(tmp_path):
+def _launch(out: Path, env: dict | None = None) -> subprocess.CompletedProcess:
     accelerate = shutil.which("accelerate") or str(Path(sys.executable).parent / "accelerate")
-    r = subprocess.run(
+    return subprocess.run(
         [
             accelerate,
             "launch",
@@ -37,12 +38,18 @@ def test_accelerate_launch_two_ranks(tmp_path):
             str(ROOT / "tests/launch_probe.py"),  # lhf as a program, saying how each rank ended
             *ARGS,
             "--out",
-            str(tmp_path / "ranks"),
+            str(out),
         ],
         capture_output=True,
         text=True,
         timeout=300,
+        env={**os.environ, **(env or {})},
     )
+
+
+@pytest.mark.slow
+def test_accelerate_launch_two_ranks(tmp_path):
+    r = _launch(tmp_path / "ranks")
     assert r.returncode == 0, r.stderr[-2000:]
     assert "[rank 1] committed" in r.stdout, "two processes should have run"
     for rank in (0, 1):  # each rank destroyed its process group before exiting
@@ -54,3 +61,23 @@ def test_accelerate_launch_two_ranks(tmp_path):
     )
     a, b = load_histories(tmp_path / "ranks"), load_histories(tmp_path / "one")
     assert a.fingerprint == b.fingerprint and a.frame_table().equals(b.frame_table())
+
+
+@pytest.mark.slow
+def test_a_failed_rank_is_named_by_the_ranks_waiting_for_it(tmp_path):
+    """Rank 0 fails while rank 1 waits for it at the end of its share: rank 1's one line says
+    that another rank stopped, not gloo's "Connection closed by peer" (which reads as a network
+    fault); the folder stays an unfinished collection (rank 1's task committed, nothing finalized),
+    which --resume completes."""
+    r = _launch(tmp_path / "ranks", {"LHF_PROBE_FAIL_RANK": "0"})
+    assert r.returncode != 0
+    assert "lhf collect: error: probe: rank 0 fails" in r.stderr, r.stderr[-2000:]
+    # rank 1 is either waiting at the barrier (this line) or already stopped by the launcher
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("lhf collect:")]
+    assert lines and all("Connection closed" not in ln for ln in lines), lines
+    assert any(
+        "rank 1 of 2: another rank stopped before reaching this point" in ln
+        or ln == "lhf collect: terminated"
+        for ln in lines
+    ), lines
+    assert not is_complete(tmp_path / "ranks")

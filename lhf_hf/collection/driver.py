@@ -1,5 +1,8 @@
 """``collect(config, out)``: run a collection to a dataset folder, in parallel, resumably.
 
+(Not named ``collect.py``: a submodule of that name, once imported on its own, would rebind the
+package attribute ``lhf_hf.collection.collect`` from this function to the module.)
+
 Tasks are spread over ``config.workers`` processes and, under ``accelerate launch``, over ranks
 (rank r takes task positions r, r + world, ...).  Every finished task is committed on its own
 (``histories.writer.write_task``), so an interrupted run loses at most the tasks in flight;
@@ -32,7 +35,7 @@ from lhf_hf.histories.writer import (
     task_done,
     write_task,
 )
-from lhf_hf.utils.launcher import end_ranks
+from lhf_hf.utils.launcher import end_ranks, wait_for_ranks
 from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
 
@@ -58,7 +61,7 @@ class _Ranks:
 
     def barrier(self) -> None:
         if self.state is not None:
-            self.state.wait_for_everyone()
+            wait_for_ranks(self.state)
 
 
 class _Progress:
