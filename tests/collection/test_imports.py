@@ -6,14 +6,19 @@ import sys
 import pytest
 
 
+def _fresh_python(code: str) -> str:
+    """What ``code`` prints in a fresh interpreter (nothing imported before it)."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.strip()
+
+
 def test_batched_ppo_imports_without_sb3_or_datasets():
     code = (
         "import sys; import lhf_hf.collection.ppo_backends; "
         "heavy = [m for m in ('stable_baselines3', 'datasets', 'gymnasium') if m in sys.modules]; "
         "print(heavy)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
+    assert _fresh_python(code) == "[]"
 
 
 def test_lazy_exports_are_the_functions():
@@ -37,5 +42,4 @@ def test_exports_stay_the_functions_when_their_modules_are_imported_first():
         "[importlib.import_module(m, col.__name__) for m in col._EXPORTS.values()]; "
         "print(sorted(n for n in col._EXPORTS if isinstance(getattr(col, n), types.ModuleType)))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
+    assert _fresh_python(code) == "[]"
