@@ -67,8 +67,7 @@ def test_accelerate_launch_two_ranks(tmp_path):
 def test_a_failed_rank_is_named_by_the_ranks_waiting_for_it(tmp_path):
     """Rank 0 fails while rank 1 waits for it at the end of its share: rank 1's one line says
     that another rank stopped, not gloo's "Connection closed by peer" (which reads as a network
-    fault); the folder stays an unfinished collection (rank 1's task committed, nothing finalized),
-    which --resume completes."""
+    fault); the folder stays an unfinished collection (nothing finalized)."""
     r = _launch(tmp_path / "ranks", {"LHF_PROBE_FAIL_RANK": "0"})
     assert r.returncode != 0
     assert "lhf collect: error: probe: rank 0 fails" in r.stderr, r.stderr[-2000:]
