@@ -41,8 +41,10 @@ import torch
 from transformers import TrainerCallback
 
 from lhf_hf.configs import TrainConfig
+from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.rollout import rollout
+from lhf_hf.evaluation.seen import check_unseen
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.histories.reader import load_histories
 from lhf_hf.modeling import load_model
@@ -304,7 +306,10 @@ def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
             work.rmdir()  # our own folder, still empty: leave nothing behind
         raise
     split_seed = int(provenance["dataset"]["split_seed"])
-    tasks = resolve_tasks(provenance["dataset"]["env_id"], "test", split_seed)
+    env_id = provenance["dataset"]["env_id"]
+    tasks = resolve_tasks(env_id, "test", split_seed)
+    # a dataset with test tasks in it would measure trained goals: refused, as by lhf evaluate
+    check_unseen(get_spec(env_id), trainer.model.config, tasks, split_seed, False, str(work))
     points = []
     for step, trained_s in clock.marks:
         ev = evaluate_checkpoint(work / f"checkpoint-{step}", tasks, split_seed,

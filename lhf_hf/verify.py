@@ -17,7 +17,7 @@ from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.hub import artifact_for
 from lhf_hf.reproduce.portable import check_export
 from lhf_hf.training.artifact import CheckpointArtifact
-from lhf_hf.utils.hub import HubArtifact
+from lhf_hf.utils.hub import HubArtifact, HubError, parse_hub_ref, resolve
 from lhf_hf.utils.outputs import MARKER, check_manifest
 
 #: output-folder kind (``utils.outputs``) -> the artifact that checks it (the others: manifest only)
@@ -31,8 +31,13 @@ FOLDER_CHECKS = {"stages": check_export}  # exported stages: each evaluation's f
 
 
 def verify(path: str | Path) -> dict:
-    """``{path, kind, manifest, problems}``: ``problems`` is empty when the folder is sound."""
-    path = Path(path)
+    """``{path, kind, manifest, problems}``: ``problems`` is empty when the folder is sound.
+
+    ``path`` may be a Hub repo id ``ORG/NAME[@REV]`` (a dataset repo, else a model repo): its
+    snapshot is checked against the manifest its push uploaded, then by its kind's own check."""
+    spec, path = str(path), Path(path)
+    if not path.is_dir() and parse_hub_ref(spec) is not None:
+        path = _snapshot(spec)
     if not path.is_dir():
         raise FileNotFoundError(f"no folder at {path}")
     kind, problems = check_manifest(path)
@@ -53,9 +58,22 @@ def verify(path: str | Path) -> dict:
     if kind in FOLDER_CHECKS:
         problems += FOLDER_CHECKS[kind](path)
     return {
-        "path": str(path),
+        "path": spec if str(path) != spec else str(path),
         "kind": kind,
         "manifest": manifest,
         "notes": notes,
         "problems": problems,
     }
+
+
+def _snapshot(spec: str) -> Path:
+    """The snapshot of a dataset repo, else of a model repo, named ``spec``."""
+    errors = []
+    for repo_type in ("dataset", "model"):
+        try:
+            return resolve(spec, repo_type, "artifact")
+        except HubError as exc:
+            if "not loaded" in str(exc):  # found, but not what was pushed: that is the answer
+                raise
+            errors.append(str(exc))
+    raise HubError(f"{spec}: neither a dataset nor a model repo ({errors[-1]})")

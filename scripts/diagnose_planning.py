@@ -32,6 +32,7 @@ from lhf_hf.evaluation.context import Context
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.planning import beam_search
 from lhf_hf.evaluation.rollout import rollout, sample_actions
+from lhf_hf.evaluation.seen import check_unseen
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.evaluation.tokens import StepTokens
 from lhf_hf.modeling import load_model
@@ -242,6 +243,7 @@ def run(args) -> None:
         split_seed = int((provenance.get("dataset") or {}).get("split_seed", 0))
     args.split_seed = split_seed
     tasks = resolve_tasks(env, "test", split_seed)
+    check_unseen(get_spec(env), model.config, tasks, split_seed, False, args.model)  # as evaluate
     optimal = float(get_spec(env).optimal_returns()[tasks].mean())
     model_id = str(Path(args.model).resolve())
     needs_planner = [p for p in args.parts if p != "data"]

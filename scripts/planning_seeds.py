@@ -18,8 +18,10 @@ import json
 
 import numpy as np
 
+from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.rollout import rollout
+from lhf_hf.evaluation.seen import check_unseen
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.modeling import load_model
 from lhf_hf.utils.io import write_json_atomic
@@ -46,6 +48,7 @@ def main() -> None:
         with open(f"{a.model}/train_config.json") as f:
             split = int(json.load(f)["dataset"]["split_seed"])
     tasks = resolve_tasks(model.config.env_id, "test", split)
+    check_unseen(get_spec(model.config.env_id), model.config, tasks, split, False, a.model)
     out = {"model": a.model, "split_seed": split, "tasks": tasks, "episodes": a.episodes}
     arms = [("no plan", False, model.config.plan_horizon)]
     arms += [(f"plan depth {h}", True, h) for h in a.horizons]

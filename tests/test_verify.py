@@ -149,7 +149,7 @@ def test_models_verify_and_pickles_are_refused(data, tmp_path, capsys):
         "--episodes",
         "1",
         "--tasks",
-        "3",
+        "38",
         "--out",
         str(model / "eval"),
     ]

@@ -7,6 +7,7 @@ torch, transformers and datasets, and ``lhf --help`` or a bad flag should not wa
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from contextlib import nullcontext
 
@@ -77,6 +78,26 @@ def main(argv: list[str] | None = None) -> int:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
         return 1
+    except MemoryError:
+        print(
+            f"lhf {args.command}: error: not enough memory for what was asked: ask for less "
+            "(fewer --steps, --histories or tasks per chunk, a smaller --batch-size)",
+            file=sys.stderr,
+        )
+        return 1
+    except OSError as exc:
+        if exc.errno not in _MACHINE_ERRNOS:
+            raise
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"lhf {args.command}: error: {exc.strerror}{where}", file=sys.stderr)
+        return 1
+
+
+#: What the machine refuses (a full disk, a name too long, no permission), not a bug of ours: one
+#: line.  Other OSErrors keep their traceback.
+_MACHINE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.ENAMETOOLONG, errno.EACCES, errno.EPERM, errno.EROFS}
+)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.io import read_json, write_json_atomic
 
 from . import native
 from .batched_ppo import HIDDEN, Rollout, StackedPolicy, make_optimizer
@@ -128,7 +128,7 @@ def verdict(obs_dim: int = 2, num_actions: int = 5) -> dict:
     obs_dim, num_actions = int(obs_dim), int(num_actions)  # gym sizes may be numpy ints
     path = _verdict_path(obs_dim, num_actions)
     try:
-        found = json.loads(path.read_text())
+        found = read_json(path)
         if found.get("choice") in ("kernel", "torch"):
             _last[:] = [{**found, "cached": True, "path": str(path)}]
             return _last[0]

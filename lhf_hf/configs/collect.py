@@ -133,7 +133,8 @@ class CollectConfig:
     """How to collect learning histories.  Stored in the dataset's ``meta/info.json``.
 
     env_id: registered env id (``lhf envs``).
-    tasks: ``all``, ``train``, ``test``, ``train:N`` / ``test:N`` (the first N of that split), task
+    tasks: ``train`` (the default: the train split of ``split_seed``, so its test tasks stay
+        unseen), ``all``, ``test``, ``train:N`` / ``test:N`` (the first N of that split), task
         indices ``0,3,7``, or a list of them (resolved to a sorted list).
     histories: learning histories per task (paper: 100).
     steps: transitions per history; a multiple of the env's horizon (paper: 1000, Meta-World 10,000).
@@ -164,7 +165,7 @@ class CollectConfig:
     """
 
     env_id: str
-    tasks: str | list[int] = "all"
+    tasks: str | list[int] = "train"
     histories: int = 100
     steps: int = 1000
     protocol: Protocol = "paper"

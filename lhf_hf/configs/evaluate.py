@@ -24,8 +24,11 @@ class EvalConfig:
     model: checkpoint folder (``lhf train`` output).
     out: output folder (``eval_results.json``, ``eval_curve.png``).
     env_id: the env to evaluate on; None = the model's.  Must match the model's spaces.
-    split_seed: train/test split; None = the split of the model's training dataset.
+    split_seed: train/test split; None = the split of the model's training data (recorded in its
+        config, also in every ``checkpoint-N``).
     tasks: ``test`` (the unseen tasks, the paper's protocol), ``train``, or task indices "0,3,7".
+    allow_seen: evaluate tasks the model was trained on (or a model that does not record its
+        training tasks); without it they are refused.  Results, plot and card then say "seen tasks".
     episodes: episodes per task (paper: 100), from an empty context.
     plan: DICP planning (beam search / greedy search) once the context is full.
     seed: seeds action sampling (and Meta-World resets).
@@ -69,6 +72,7 @@ class EvalConfig:
     plan_order: PlanOrder = "sample"
     rollouts: int = 1
     plan_gate: PlanGate = "always"
+    allow_seen: bool = False
 
     def __post_init__(self) -> None:
         check_types(self)

@@ -24,6 +24,10 @@ READS: dict[str, frozenset[str]] = {
 }
 
 
+#: Largest lambda: Improvement is then below float resolution of U, and U's values stay plottable.
+MAX_LAM = 1e6
+
+
 @dataclass(frozen=True)
 class FilterConfig:
     """How to filter (resample) the histories of a dataset.  Stored with every selection.
@@ -56,8 +60,11 @@ class FilterConfig:
             raise ValueError(
                 f"FilterConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}"
             )
-        if not math.isfinite(self.lam) or self.lam < 0:
-            raise ValueError(f"FilterConfig.lam must be a finite value >= 0, got {self.lam!r}")
+        if not math.isfinite(self.lam) or not 0 <= self.lam <= MAX_LAM:
+            raise ValueError(
+                f"FilterConfig.lam must be between 0 and {MAX_LAM:g}, got {self.lam!r} (beyond "
+                "~1e3 Stability alone decides U; the paper's sweep tops at 1000)"
+            )
         if not math.isfinite(self.alpha) or self.alpha <= 0:
             raise ValueError(f"FilterConfig.alpha must be > 0, got {self.alpha!r}")
         if not 0 < self.fraction <= 1:

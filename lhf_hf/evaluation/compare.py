@@ -12,14 +12,13 @@ runs in the given order) when both sides have the same number of runs.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
-from lhf_hf.utils.io import write_json_atomic, write_text_atomic
+from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 
 from .evaluate import RESULTS_FILE
@@ -32,7 +31,7 @@ def load_results(path: str) -> dict:
     if not f.exists():
         raise FileNotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
     try:
-        r = json.loads(f.read_text())
+        r = read_json(f)
     except ValueError as exc:
         raise ValueError(f"compare: {f}: not readable JSON ({exc})") from None
     # what compare reads, checked here so that a damaged file is named, not a KeyError
@@ -61,7 +60,15 @@ def load_results(path: str) -> dict:
 
 
 def backbone_of(r: dict) -> str:
-    return r["objective"].upper() + (" + plan" if r["config"].get("plan") else "")
+    """The table row of a run: its objective, planning, and "seen tasks" when the model trained on
+    some of the evaluated tasks (``lhf evaluate --allow-seen``), so such a row is never read as
+    unseen-task ICRL."""
+    seen = r.get("task_label", "unseen tasks") != "unseen tasks"
+    return (
+        r["objective"].upper()
+        + (" + plan" if r["config"].get("plan") else "")
+        + (" [seen tasks]" if seen else "")
+    )
 
 
 def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
@@ -191,7 +198,10 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         b = np.array([r["mean_curve"] for r in base[backbone]])  # (runs, E)
         f = np.array([r["mean_curve"] for r in filt[backbone]])
         mb, mf = b.mean(1), f.mean(1)  # whole-curve mean per run
-        e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else float("nan")
+        # E divides by the baseline's return: with a baseline of 0 it is undefined (None in the
+        # JSON, which stays valid JSON; NaN is not), and the paired difference still says which
+        # arm returned more
+        e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else None
         e_std = e_ci = diff_ci = None
         paired = len(mb) == len(mf) and len(mb) > 1
         if paired and np.all(mb != 0):
@@ -219,7 +229,8 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "lhf_std": float(mf.std()),
                 "baseline_final": float(b[:, -tail:].mean()),
                 "lhf_final": float(f[:, -tail:].mean()),
-                "E": float(e),
+                "E": None if e is None else float(e),
+                "E_note": "undefined: the baseline's mean return is 0" if e is None else None,
                 "E_std": e_std,
                 "E_ci95": e_ci,
                 "diff": float((mf - mb).mean()) if paired else None,
@@ -269,8 +280,11 @@ def markdown_table(rows: list[dict], env_id: str) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        e = f"{100 * r['E']:+.1f}" + (
-            f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
+        e = (
+            "undefined (baseline 0)"
+            if r["E"] is None
+            else f"{100 * r['E']:+.1f}"
+            + (f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else "")
         )
         lines.append(
             f"| {r['backbone']} | {pm(r['baseline_mean'], r['baseline_std'])} | {pm(r['lhf_mean'], r['lhf_std'])} "

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -15,12 +14,14 @@ from lhf_hf.modeling import load_model
 from lhf_hf.training.card import MODEL_EVALS_FILE, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
-from lhf_hf.utils.io import write_json_atomic
-from lhf_hf.utils.outputs import output_folder
+from lhf_hf.utils.io import read_json, write_json_atomic
+from lhf_hf.utils.outputs import file_lock, output_folder
+from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
 
 from .plots import plot_eval_curve
 from .rollout import rollout
+from .seen import check_unseen, seen_label
 from .task_batch import make_task_batch
 
 RESULTS_FILE = "eval_results.json"
@@ -66,10 +67,16 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     with output_folder(
         cfg.out, "evaluation", overwrite=cfg.overwrite, inputs=[cfg.model], legacy=[RESULTS_FILE]
     ):
-        return _evaluate_into(cfg, progress)
+        results, model_dir = _evaluate_into(cfg, progress)
+    # Only a finished evaluation enters the card: an interrupted one (its folder put back or left
+    # unfinished) never shows there.  The update itself runs whole.
+    if not is_hub_snapshot(model_dir):  # never write into the Hub cache; push the card instead
+        with interrupts_ignored():
+            _add_to_model_card(model_dir, results)
+    return results
 
 
-def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
+def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
     model_dir = resolve(cfg.model, "model", "model checkpoint")
     model = load_model(str(model_dir))
     mc = model.config
@@ -85,11 +92,12 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
             f"--plan needs a model with dynamics heads (objective dicp); {cfg.model} is {mc.objective!r}"
         )
     train_cfg_path = model_dir / TRAIN_CONFIG_FILE
-    train_cfg = json.loads(train_cfg_path.read_text()) if train_cfg_path.exists() else None
+    train_cfg = read_json(train_cfg_path) if train_cfg_path.exists() else None
     split_seed = cfg.split_seed
-    if split_seed is None:
-        split_seed = int(((train_cfg or {}).get("dataset") or {}).get("split_seed", 0))
+    if split_seed is None:  # the model's own split (its config: checkpoint-N folders have it too)
+        split_seed = mc.split_seed if mc.split_seed is not None else 0
     tasks = resolve_tasks(env_id, cfg.tasks, split_seed)
+    seen = check_unseen(spec, mc, tasks, split_seed, cfg.allow_seen, cfg.model)
     # rollout-major copies: row r * len(tasks) + i of the batch is task tasks[i], rollout r
     batch = make_task_batch(env_id, tasks * cfg.rollouts, split_seed, cfg.seed)
     res = rollout(
@@ -110,6 +118,9 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
         "env_id": env_id,
         "split_seed": split_seed,
         "tasks": tasks,
+        # the evaluated tasks the model trained on ([] = all unseen; None = not recorded)
+        "seen_tasks": seen,
+        "task_label": seen_label(seen, len(tasks)),
         "objective": mc.objective,
         "model": {
             "path": source_of(cfg.model, model_dir),
@@ -143,12 +154,10 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> dict:
     plot_eval_curve(
         {f"{mc.objective.upper()}{plan_label(cfg)}": res.returns},
         out / CURVE_FILE,
-        title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, in context",
+        title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, {results['task_label']}, in context",
         optimal=optimal,
     )
-    if not is_hub_snapshot(model_dir):  # never write into the Hub cache; push the card instead
-        _add_to_model_card(model_dir, results)
-    return results
+    return results, model_dir
 
 
 def _add_to_model_card(model_dir: Path, results: dict) -> None:
@@ -156,14 +165,22 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
     prov_path = model_dir / TRAIN_CONFIG_FILE
     if not prov_path.exists():
         return  # not an lhf checkpoint folder (no card to update)
+    with file_lock(
+        model_dir / f".{MODEL_EVALS_FILE}.lock"
+    ):  # concurrent evaluations: each entry kept
+        _add_entry(model_dir, prov_path, results)
+
+
+def _add_entry(model_dir: Path, prov_path: Path, results: dict) -> None:
     evals_path = model_dir / MODEL_EVALS_FILE
-    evals = json.loads(evals_path.read_text()) if evals_path.exists() else []
+    evals = read_json(evals_path) if evals_path.exists() else []
     summary = {
         "out": str(Path(results["config"]["out"]).resolve()),
         "env_id": results["env_id"],
         "split_seed": results["split_seed"],
         "tasks": results["config"]["tasks"],
         "num_tasks": len(results["tasks"]),
+        "task_label": results["task_label"],
         "episodes": results["config"]["episodes"],
         "rollouts": results["rollouts"],
         "plan": results["config"]["plan"],
@@ -176,6 +193,4 @@ def _add_to_model_card(model_dir: Path, results: dict) -> None:
     }
     evals = [e for e in evals if e["out"] != summary["out"]] + [summary]
     write_json_atomic(evals, evals_path)
-    write_model_card(
-        model_dir, AutoConfig.from_pretrained(model_dir), json.loads(prov_path.read_text()), evals
-    )
+    write_model_card(model_dir, AutoConfig.from_pretrained(model_dir), read_json(prov_path), evals)

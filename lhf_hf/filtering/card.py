@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from huggingface_hub import DatasetCard, DatasetCardData
 
+from lhf_hf.utils.io import read_json
 from lhf_hf.utils.templates import template_path
 
 from .select import CONFIG_FILE, SCORES_FILE, SELECTION_FILE
@@ -19,7 +19,7 @@ def _fmt(x) -> str:
 def render_selection_card(path: str | Path, load_path: str | None = None) -> str:
     """Card text of the selection folder ``path``; its snippets load it from ``load_path``."""
     path = Path(path)
-    meta = json.loads((path / CONFIG_FILE).read_text())
+    meta = read_json(path / CONFIG_FILE)
     flt, src, summary = meta["filter"], meta["source"], meta.get("summary", {})
     env_id = src.get("env_id", "?")
     label = (

@@ -67,12 +67,14 @@ def materialize(
     progress: bool = True,
     inputs: Iterable[str | Path | None] = (),
     extra_files: dict[str, Path] | None = None,
+    defer_to: list | None = None,
 ):
     """Write the selection as a full dataset in our layout (repeated histories as their own slices).
 
     Every task keeps its number of histories; the card says how the dataset was derived.
     ``inputs``: folders ``out`` may not be or touch besides the source dataset (the selection's).
     ``extra_files``: copied into the dataset before its manifest (``write_derived``).
+    ``defer_to``: switch together with the enclosing selection (``utils.outputs.output_folder``).
     """
     _check_source(ds, selection)
     counts = selection.counts()
@@ -113,4 +115,5 @@ def materialize(
         inputs=inputs,
         identity={"op": "lhf", "filter": cfg.to_dict()},
         extra_files=extra_files,
+        defer_to=defer_to,
     )

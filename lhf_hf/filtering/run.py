@@ -41,13 +41,23 @@ def run_filter(
             inputs=[dataset, out],
             legacy=DATASET_FILES,
         )  # not resumable: `lhf filter` has no --resume (an error suggesting it named no flag)
+    # The selection and the dataset materialised from it change together: an interrupt at any
+    # instant leaves both new or both old (utils.outputs, linked / defer_to).
+    linked: list = []
     with output_folder(
-        out, "selection", overwrite=overwrite, inputs=[dataset, materialize], legacy=[CONFIG_FILE]
+        out,
+        "selection",
+        overwrite=overwrite,
+        inputs=[dataset, materialize],
+        legacy=[CONFIG_FILE],
+        linked=linked,
     ):
-        return _filter_into(dataset, out, config, materialize, overwrite, progress)
+        return _filter_into(dataset, out, config, materialize, overwrite, progress, linked)
 
 
-def _filter_into(dataset, out: Path, config, materialize, overwrite: bool, progress: bool) -> dict:
+def _filter_into(
+    dataset, out: Path, config, materialize, overwrite: bool, progress: bool, linked: list
+) -> dict:
     ds = load_histories(dataset)
     start = time.perf_counter()
     selection = filter_histories(ds, config)
@@ -73,6 +83,7 @@ def _filter_into(dataset, out: Path, config, materialize, overwrite: bool, progr
             progress=progress,
             inputs=[out],
             extra_files={f"meta/{PLOT_FILE}": out / PLOT_FILE},  # before its manifest
+            defer_to=linked,
         )
         summary["materialize_seconds"] = round(time.perf_counter() - start, 3)
         selection.save(out, summary)

@@ -8,7 +8,6 @@ dataset's fingerprint.  It never rewrites frames: ``apply_selection`` / ``materi
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,7 +22,7 @@ from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.utils.hub import resolve
-from lhf_hf.utils.io import write_json_atomic, write_parquet_atomic
+from lhf_hf.utils.io import read_json, write_json_atomic, write_parquet_atomic
 from lhf_hf.utils.versions import library_versions
 
 from .resample import resample_task
@@ -264,7 +263,7 @@ def load_selection(path: str | Path) -> Selection:
             raise FileNotFoundError(
                 f"{path} is not a selection folder: {f} is missing (made by `lhf filter`)"
             )
-    meta = json.loads((path / CONFIG_FILE).read_text())
+    meta = read_json(path / CONFIG_FILE)
     return Selection(
         pq.read_table(path / SCORES_FILE), FilterConfig(**meta["filter"]), meta["source"]
     )

@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 from lhf_hf.utils.io import write_bytes_atomic
 from lhf_hf.utils.versions import library_versions
 
+from .checks import check_dataset
 from .reader import HistoryDataset, load_histories
 from .schema import TaskHistories
 from .writer import claim_dataset, finalize, is_complete, task_done, write_task
@@ -34,6 +35,7 @@ def write_derived(
     progress: bool = True,
     inputs: Iterable[str | Path | None] = (),
     extra_files: dict[str, Path] | None = None,
+    defer_to: list | None = None,
 ) -> HistoryDataset:
     """Write ``transform(task, histories)`` for every task of ``source`` as a new dataset at ``out``.
 
@@ -41,14 +43,27 @@ def write_derived(
     with the source's path, fingerprint and collection config.  ``out`` may not be, contain or lie
     in the source or any of ``inputs``.  ``extra_files`` (path in the dataset -> file to copy,
     e.g. the selection's plot) are written before the folder's manifest, so ``lhf verify`` knows
-    them.
+    them.  ``defer_to``: switch together with an enclosing artifact (``utils.outputs``).
     """
+    # A derived dataset records the source's fingerprint as its origin: a source whose files no
+    # longer hash to it (or whose returns disagree with its rewards) would pass that on as sound.
+    problems = check_dataset(source, full=True)
+    if problems:
+        raise ValueError(
+            f"the source dataset {source.root} fails `lhf verify` ({'; '.join(problems[:3])}): "
+            "nothing derived from it"
+        )
     tasks = [int(t) for t in source.lhf["tasks"]]
     H = source.lhf["histories_per_task"]
     identity = {**identity, "source_fingerprint": source.fingerprint}
     out = Path(out)
     with claim_dataset(
-        out, identity, resume=resume, overwrite=overwrite, inputs=[source.root, *inputs]
+        out,
+        identity,
+        resume=resume,
+        overwrite=overwrite,
+        inputs=[source.root, *inputs],
+        defer_to=defer_to,
     ):
         if resume and is_complete(out):
             return load_histories(out)

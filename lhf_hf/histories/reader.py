@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from functools import cached_property
 from pathlib import Path
 
@@ -14,6 +13,7 @@ from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
 from lhf_hf.utils.hub import resolve, source_of
+from lhf_hf.utils.io import read_json
 
 from .checks import check_dataset
 from .schema import TaskHistories, task_histories_from_frames
@@ -73,7 +73,7 @@ class HistoryDataset:
                 f"{self.root} is not a learning-history dataset: {C.INFO_PATH} is missing{hint}"
             )
         try:
-            self.info = json.loads(info_file.read_text())
+            self.info = read_json(info_file)
         except ValueError as exc:
             raise DatasetFormatError(f"{info_file} is not valid JSON: {exc}") from None
         if self.info.get("codebase_version") != C.CODEBASE_VERSION or "lhf" not in self.info:
@@ -125,7 +125,7 @@ class HistoryDataset:
 
     @cached_property
     def stats(self) -> dict:
-        return json.loads((self.root / C.STATS_PATH).read_text())
+        return read_json(self.root / C.STATS_PATH)
 
     # ------------------------------------------------------------------ tables
     @cached_property

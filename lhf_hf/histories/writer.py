@@ -29,7 +29,13 @@ import pyarrow.parquet as pq
 
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
-from lhf_hf.utils.io import parquet_num_rows, sha256_file, write_json_atomic, write_parquet_atomic
+from lhf_hf.utils.io import (
+    parquet_num_rows,
+    read_json,
+    sha256_file,
+    write_json_atomic,
+    write_parquet_atomic,
+)
 from lhf_hf.utils.outputs import OutputError, output_folder
 
 from .card import write_card
@@ -70,10 +76,12 @@ def claim_dataset(
     resume: bool = False,
     overwrite: bool = False,
     inputs: Iterable[str | Path | None] = (),
+    defer_to: list | None = None,
 ) -> Iterator[Path]:
     """Hold ``root`` for writing the dataset of config ``identity`` (``utils.outputs`` policy: a
     non-empty folder must be an lhf dataset, continued with ``resume`` or replaced with
-    ``overwrite``; never an input); a resumed one must have been started with the same identity."""
+    ``overwrite``; never an input); a resumed one must have been started with the same identity.
+    ``defer_to``: switch together with an enclosing artifact (``output_folder``)."""
     root = Path(root)
     with output_folder(
         root,
@@ -83,10 +91,11 @@ def claim_dataset(
         inputs=inputs,
         legacy=DATASET_FILES,
         resumable=True,
+        defer_to=defer_to,
     ):
         config_file = root / C.CONFIG_PATH
         if resume and config_file.exists():
-            diff = _diff(json.loads(config_file.read_text()), identity)
+            diff = _diff(read_json(config_file), identity)
             if diff:
                 raise OutputExistsError(
                     f"{root} holds a collection with a different config ({'; '.join(diff)}); "
@@ -150,7 +159,7 @@ def task_done(root: str | Path, position: int, expected_rows: int) -> bool:
     root = Path(root)
     marker = _part(root, position, "json")
     try:
-        meta = json.loads(marker.read_text())
+        meta = read_json(marker)
     except (OSError, ValueError):
         return False
     data = root / data_path(position)
@@ -217,7 +226,7 @@ def finalize(
             f"{len(missing)} of {len(tasks)} tasks are not written yet (first: task "
             f"{tasks[missing[0]]}); run the collection again with --resume"
         )
-    markers = [json.loads(_part(root, p, "json").read_text()) for p in range(len(tasks))]
+    markers = [read_json(_part(root, p, "json")) for p in range(len(tasks))]
     episodes = pa.concat_tables(
         [pq.read_table(_part(root, p, "episodes.parquet")) for p in range(len(tasks))]
     )

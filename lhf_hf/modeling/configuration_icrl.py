@@ -31,6 +31,11 @@ class ICRLConfig(LlamaConfig):
     objective: ``ad`` (imitate the source action), ``dpt`` (predict the oracle's optimal action) or
         ``dicp`` (AD plus reward / next-state / return-to-go heads, paper appendix "DICP").
     env_id: the environment the model was trained for (checked again at evaluation).
+    train_tasks: the task indices of the training data (set by ``lhf train``; None: not recorded).
+        ``lhf evaluate`` refuses these tasks unless asked (``--allow-seen``): they are not unseen.
+    split_seed: the train/test split seed of the training data (set by ``lhf train``): the
+        evaluation's default split, and, where the task content depends on it
+        (``EnvSpec.seeded_tasks``), part of what makes a task the same as a trained one.
     state_dim: length of the state vector.
     state_bins: 0 for real-valued states; otherwise every state coordinate is an integer in
         ``[0, state_bins)`` (the gridworlds): it is one-hot encoded at the input and predicted by a
@@ -77,6 +82,8 @@ class ICRLConfig(LlamaConfig):
 
     objective: str = "ad"
     env_id: str | None = None
+    train_tasks: list[int] | None = None
+    split_seed: int | None = None
     state_dim: int = 2
     state_bins: int = 0
     state_encoding: str = "coordinates"
@@ -152,6 +159,10 @@ class ICRLConfig(LlamaConfig):
             raise bad("return_scale", "must be > 0")
         if not 0 <= self.embedding_dropout < 1:
             raise bad("embedding_dropout", "must be in [0, 1)")
+        if self.train_tasks is not None and any(t < 0 for t in self.train_tasks):
+            raise bad("train_tasks", "must be None or task indices >= 0")
+        if self.split_seed is not None and self.split_seed < 0:
+            raise bad("split_seed", "must be None or >= 0")
         if self.plan_samples < 1:
             raise bad("plan_samples", "must be >= 1")
         super().__post_init__(**kwargs)

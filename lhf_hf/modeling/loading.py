@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from safetensors import SafetensorError, safe_open
 from transformers import AutoConfig, AutoModel
 
 from lhf_hf.utils.hub import resolve
@@ -17,7 +20,11 @@ def load_model(path: str) -> ICRLModel:
         raise FileNotFoundError(
             f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
         )
-    config = AutoConfig.from_pretrained(p)
+    try:
+        config = AutoConfig.from_pretrained(p)
+    except (OSError, ValueError, TypeError) as exc:  # transformers: OSError for malformed JSON
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"{p / 'config.json'} is not a readable model config ({why})") from None
     if getattr(config, "model_type", None) != "lhf_icrl":
         raise ValueError(
             f"{path} holds a {config.model_type!r} model, not an lhf_icrl (ICRL) model"
@@ -30,4 +37,47 @@ def load_model(path: str) -> ICRLModel:
                 "in a Python process you trust to get model.safetensors"
             )
         raise FileNotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
+    check_weights(p, config)
     return AutoModel.from_pretrained(p, use_safetensors=True).eval()
+
+
+def check_weights(folder: Path, config) -> None:
+    """Refuse weights that do not fit ``config`` exactly: a missing, unexpected or mis-shaped
+    tensor, or an unreadable file.
+
+    ``from_pretrained`` would initialise a missing head at random and carry on (a DICP config over
+    AD weights evaluates random reward heads), so every tensor is checked against the model the
+    config builds before anything loads.
+    """
+    expected = {k: tuple(v.shape) for k, v in ICRLModel(config).state_dict().items()}
+    found: dict[str, tuple] = {}
+    for file in sorted(folder.glob("model*.safetensors")):
+        try:
+            with safe_open(str(file), framework="pt") as f:
+                for k in f.keys():  # noqa: SIM118 (safe_open is not a mapping)
+                    found[k] = tuple(f.get_slice(k).get_shape())
+        except (SafetensorError, OSError, ValueError) as e:
+            raise ValueError(f"{file}: not a readable safetensors file ({e})") from None
+    missing = sorted(set(expected) - set(found))
+    unexpected = sorted(set(found) - set(expected))
+    misshaped = sorted(
+        f"{k} {list(found[k])} (config: {list(expected[k])})"
+        for k in set(found) & set(expected)
+        if found[k] != expected[k]
+    )
+    problems = [
+        *([f"missing {_names(missing)}"] if missing else []),
+        *([f"unexpected {_names(unexpected)}"] if unexpected else []),
+        *([f"mis-shaped {_names(misshaped)}"] if misshaped else []),
+    ]
+    if problems:
+        raise ValueError(
+            f"{folder}: the weights do not fit its config.json ({config.objective}, "
+            f"{config.num_hidden_layers} layers, hidden {config.hidden_size}): "
+            + "; ".join(problems)
+        )
+
+
+def _names(items: list[str], shown: int = 4) -> str:
+    more = f" and {len(items) - shown} more" if len(items) > shown else ""
+    return ", ".join(items[:shown]) + more

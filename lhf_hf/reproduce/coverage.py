@@ -34,11 +34,12 @@ inside a config class still counts as the current settings.  A malformed ``resul
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from urllib.parse import quote
 
 import yaml
+
+from lhf_hf.utils.io import read_json
 
 from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
 from .experiment import PRESETS, Experiment, experiment_names, load_experiment, spec_path
@@ -176,7 +177,7 @@ def _tables(root: Path) -> tuple[list[tuple[Path, dict]], list[str]]:
     out, bad = [], []
     for path in sorted(root.glob("*/results.json")):
         try:
-            summary = json.loads(path.read_text())
+            summary = read_json(path)
             if not isinstance(summary["experiment"]["name"], str):
                 raise TypeError
         except (OSError, ValueError, KeyError, TypeError):
@@ -195,7 +196,7 @@ def exported_hashes(root: Path) -> tuple[dict[str, str], list[str]]:
     bad += [f"{p.name} (no stages.json)" for p in folders if not (p / "stages.json").is_file()]
     for index in sorted((root / "stages").glob("*/stages.json")):
         try:
-            stages = json.loads(index.read_text())["stages"]
+            stages = read_json(index)["stages"]
             found = {s["hash"]: index.parent.name for s in stages if s["kind"] == "evaluate"}
             if not all(isinstance(h, str) for h in found):
                 raise TypeError("a hash is not a string")
@@ -210,7 +211,7 @@ def _reference() -> dict:
     """The first shipped machine's rates (its CPU named in the page), whichever machine renders."""
     if not REFERENCE.exists():
         return load_reference()
-    first = reference_machines(json.loads(REFERENCE.read_text()))[0]
+    first = reference_machines(read_json(REFERENCE))[0]
     return load_reference(cpu=first.get("cpu", "?"), isa=first.get("isa", "?"))
 
 

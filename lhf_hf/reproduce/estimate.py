@@ -36,7 +36,6 @@ durations (one thread per training / evaluation).
 from __future__ import annotations
 
 import heapq
-import json
 import math
 import os
 from collections.abc import Sequence
@@ -51,6 +50,7 @@ from lhf_hf.envs import get_spec, list_env_ids
 from lhf_hf.envs.registry import describe_space
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
+from lhf_hf.utils.io import read_json
 
 from .parallel import IN_PROCESS, can_start, start_order
 from .rate_key import RateKey
@@ -167,7 +167,7 @@ def current_key(rec: dict, work: Path) -> str | None:
         config = None
         for name in (DONE_FILE, RECORD_FILE) if isinstance(model, str) and model else ():
             try:
-                config = json.loads((work / "train" / model[:12] / name).read_text())["config"]
+                config = read_json(work / "train" / model[:12] / name)["config"]
                 break
             except (OSError, ValueError, KeyError, TypeError):
                 continue
@@ -225,11 +225,11 @@ def work_seconds(kind: str, folder: Path) -> float | None:
     start-up, so the two are told apart."""
     try:
         if kind == "train":
-            log = json.loads((folder / "model" / "training_log.json").read_text())
+            log = read_json(folder / "model" / "training_log.json")
             runtimes = [e["train_runtime"] for e in log if "train_runtime" in e]
             return float(runtimes[-1]) if runtimes else None
         if kind == "evaluate":
-            return float(json.loads((folder / "eval" / "eval_results.json").read_text())["wall_s"])
+            return float(read_json(folder / "eval" / "eval_results.json")["wall_s"])
     except (OSError, ValueError, KeyError, TypeError, OverflowError):
         return None
     return None
@@ -346,7 +346,7 @@ def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | No
     if not path.exists():
         return {"cpu": "?", "rates": []}
     try:
-        machines = reference_machines(json.loads(path.read_text()))
+        machines = reference_machines(read_json(path))
     except (OSError, ValueError) as e:
         raise ValueError(f"{path}: not a rates table ({e})") from None
     cpu = cpu_model() if cpu is None else cpu

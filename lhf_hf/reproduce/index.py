@@ -11,13 +11,12 @@ the names of such tables so the caller can say so.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
 from urllib.parse import quote
 
-from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.io import read_json, write_text_atomic
 
 from .coverage import coverage as cells_of
 from .coverage import recorded_number as _num
@@ -195,7 +194,7 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
     bad = []
     for folder in folders:
         try:
-            body += _table(folder, json.loads((folder / "results.json").read_text()))
+            body += _table(folder, read_json(folder / "results.json"))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             body += [f"## {folder.name}", "", f"`results.json` unreadable: {exc!r}", ""]
             bad.append(folder.name)

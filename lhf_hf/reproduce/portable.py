@@ -23,13 +23,12 @@ other runs' stages, and the collections and filters the report reads.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
 from pathlib import Path
 
-from lhf_hf.utils.io import sha256_file, write_json_atomic
+from lhf_hf.utils.io import read_json, sha256_file, write_json_atomic
 from lhf_hf.utils.outputs import check_manifest, output_folder
 
 from .stages import DONE_FILE, LOG_FILE, RECORD_FILE, Stage, config_hash, done_record
@@ -73,7 +72,7 @@ def read_index(src: str | Path) -> dict:
             "make one with lhf reproduce ... --export-stages DIR)"
         )
     try:
-        index = json.loads(path.read_text())
+        index = read_json(path)
         if not isinstance(index, dict):
             raise ValueError("not a JSON object")
         if index.get("format") != FORMAT:
@@ -141,7 +140,9 @@ def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about
                 "another folder (or delete that one yourself)"
             )
     entries = []
-    with output_folder(dest, "stages", overwrite=True, inputs=[work]) as out:
+    with output_folder(
+        dest, "stages", overwrite=True, inputs=[work], own_nested=["evaluation"]
+    ) as out:
         for s in done:
             src = s.path(work)
             entry = {"kind": s.kind, "label": s.label, "hash": s.hash}
@@ -152,7 +153,7 @@ def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about
                 entry["files"] = _files(target)
             else:
                 name = DONE_FILE if s.done(work) else RECORD_FILE
-                record = json.loads((src / name).read_text())
+                record = read_json(src / name)
                 entry["path"] = f"records/{s.kind}-{src.name}.json"
                 write_json_atomic(record, out / entry["path"])
             entries.append(entry)
@@ -179,7 +180,7 @@ def _read_stage(src: Path, e: dict) -> dict:
             )
         path = path / DONE_FILE
     try:
-        done = json.loads(path.read_text())
+        done = read_json(path)
         ok = done.get("kind") == e["kind"] and _identity(done) == e["hash"]
     except (OSError, ValueError, AttributeError, KeyError, TypeError) as exc:
         raise ExportError(f"{src}: stage {e['label']!r} is unreadable: {exc}") from exc

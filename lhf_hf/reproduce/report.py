@@ -15,7 +15,7 @@ SWEEP_FIGURE = "sweep.png"
 
 
 def verdict(
-    e: float,
+    e: float | None,
     e_std: float | None,
     ci: tuple | list | None = None,
     diff_ci: tuple | list | None = None,
@@ -30,7 +30,7 @@ def verdict(
     were all +2.7 .. +4.4 (docs/reproduce.md)."""
     if _finite_pair(diff_ci):
         return _judge(diff_ci, "the paired return difference's 95% CI spans 0")
-    if not np.isfinite(e):
+    if e is None or not np.isfinite(e):
         return "undefined (baseline return 0)"
     if _finite_pair(ci):
         return _judge(ci, "the 95% CI spans 0")
@@ -211,7 +211,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
                 continue
             std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
             entries.append(f"{_pct(r['E'])}{std}{paper_s}")
-            per_col[c].append(r["E"])
+            if r["E"] is not None:  # undefined where the baseline returned 0
+                per_col[c].append(r["E"])
             verdicts.append((label, r))
         lines.append(f"| {label} | " + " | ".join(entries) + " |")
     avg = []

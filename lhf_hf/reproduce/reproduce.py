@@ -30,7 +30,7 @@ from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
 from lhf_hf.training.trainer import last_checkpoint
-from lhf_hf.utils.io import write_bytes_atomic, write_json_atomic, write_text_atomic
+from lhf_hf.utils.io import read_json, write_bytes_atomic, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
@@ -204,7 +204,9 @@ def reproduce(
             f"[lhf reproduce] warning: --jobs {jobs} on {os.cpu_count()} cores: the stages will "
             "share cores (one thread each), which is slower than --jobs equal to the cores"
         )
-    with output_folder(out, "report", overwrite=True, inputs=[work], legacy=REPORT_FILES):
+    with output_folder(
+        out, "report", overwrite=True, inputs=[work], legacy=REPORT_FILES, own_nested=["comparison"]
+    ):
         command = None
         if (
             jobs > 1
@@ -481,7 +483,7 @@ SELECTION_FIELDS = (
 
 def _selection_summary(folder: Path) -> dict:
     """A finished filter stage's selection summary (the fields above; absent ones are None)."""
-    found = json.loads((folder / "selection" / CONFIG_FILE).read_text()).get("summary") or {}
+    found = read_json(folder / "selection" / CONFIG_FILE).get("summary") or {}
     return {k: found.get(k) for k in SELECTION_FIELDS}
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
-from lhf_hf.utils.io import write_json_atomic
+from lhf_hf.utils.io import read_json, write_json_atomic
 
 DONE_FILE = "stage.json"
 LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
@@ -92,7 +92,7 @@ def done_record(folder: Path) -> dict | None:
     output that may not be there."""
     folder = Path(folder)
     try:
-        found = json.loads((folder / DONE_FILE).read_text())
+        found = read_json(folder / DONE_FILE)
     except (OSError, ValueError):
         return None
     if not isinstance(found, dict) or not finite_seconds(found.get("wall_s")):

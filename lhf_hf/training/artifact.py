@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from transformers import AutoConfig
@@ -12,6 +11,7 @@ from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
 from lhf_hf.utils.hub import HubArtifact
+from lhf_hf.utils.io import read_json
 
 from .card import MODEL_EVALS_FILE, render_model_card
 from .trainer import TRAIN_CONFIG_FILE
@@ -25,7 +25,7 @@ class CheckpointArtifact(HubArtifact):
     def detect(cls, path: Path) -> bool:
         if not (path / "config.json").exists():
             return False
-        model_type = json.loads((path / "config.json").read_text()).get("model_type")
+        model_type = read_json(path / "config.json").get("model_type")
         if model_type != "lhf_icrl":
             raise ValueError(f"{path} holds a {model_type!r} model, not an lhf_icrl checkpoint")
         return True
@@ -47,7 +47,7 @@ class CheckpointArtifact(HubArtifact):
         problems = super().verify(path)
         if problems:
             return problems
-        data = json.loads((path / TRAIN_CONFIG_FILE).read_text()).get("dataset") or {}
+        data = read_json(path / TRAIN_CONFIG_FILE).get("dataset") or {}
         source = Path(data.get("path", ""))
         if source.is_dir() and (source / C.INFO_PATH).exists():
             try:
@@ -68,7 +68,7 @@ class CheckpointArtifact(HubArtifact):
         evals = path / MODEL_EVALS_FILE
         return render_model_card(
             AutoConfig.from_pretrained(path),
-            json.loads((path / TRAIN_CONFIG_FILE).read_text()),
+            read_json(path / TRAIN_CONFIG_FILE),
             load_path=repo_id,
-            evaluations=json.loads(evals.read_text()) if evals.exists() else None,
+            evaluations=read_json(evals) if evals.exists() else None,
         )

@@ -41,21 +41,25 @@ def eval_section(evaluations: list[dict]) -> str:
     if not evaluations:
         return NO_EVAL
     lines = [
-        "In-context returns on unseen tasks (mean over tasks, and over rollouts where a task was "
-        "rolled out `x N` times; whole curve and the last 10% of the episodes), from "
-        "`lhf evaluate`:",
+        "In-context returns (mean over tasks, and over rollouts where a task was rolled out "
+        "`x N` times; whole curve and the last 10% of the episodes), from `lhf evaluate`; "
+        "the seen column says whether the model trained on the tasks:",
         "",
-        "| env | tasks | split seed | seed | episodes | planning | context | mean return | final return | success |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| env | tasks | seen | split seed | seed | episodes | planning | context | mean return | final return | success |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for e in evaluations:
         succ = "-" if e.get("success_rate") is None else f"{e['success_rate']:.3f}"
         lines.append(
-            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e['split_seed']} | {e.get('seed', '-')} | {e['episodes']} | "
+            f"| {e['env_id']} | {e['num_tasks']} {e['tasks']}{_copies(e)} | {e.get('task_label', '-')} | {e['split_seed']} | {e.get('seed', '-')} | {e['episodes']} | "
             f"{_planning(e)} | {e.get('context', '-')} | {e['mean_return']:.3f} | "
             f"{e['final_return']:.3f} | {succ} |"
         )
     return "\n".join(lines)
+
+
+def _is_seen(e: dict) -> bool:
+    return e.get("task_label", "unseen tasks") != "unseen tasks"
 
 
 def model_index(evaluations: list[dict]) -> list:
@@ -78,8 +82,10 @@ def model_index(evaluations: list[dict]) -> list:
                 task_type="reinforcement-learning",
                 task_name="in-context reinforcement learning",
                 dataset_type=e["env_id"],
-                dataset_name=f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']})",
-                dataset_config=f"{e['tasks']}-split-{e['split_seed']}",
+                dataset_name=f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}"
+                + (f", {e['task_label']})" if _is_seen(e) else ")"),
+                dataset_config=f"{e['tasks']}-split-{e['split_seed']}"
+                + ("-seen" if _is_seen(e) else ""),
                 metric_type="mean_reward",
                 metric_name=f"{episodes} ({', '.join(setting)})" if setting else episodes,
                 metric_value=round(e["mean_return"], 4),

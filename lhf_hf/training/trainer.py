@@ -8,7 +8,6 @@ Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with 
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import sys
 import time
@@ -28,13 +27,20 @@ from lhf_hf.envs import get_spec
 from lhf_hf.filtering.select import SCORES_FILE, load_selection, source_mismatch
 from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
+from lhf_hf.modeling.loading import check_weights
 from lhf_hf.utils.hub import resolve, source_of
-from lhf_hf.utils.io import sha256_file, write_json_atomic, write_text_atomic
+from lhf_hf.utils.io import (
+    give_umask_mode,
+    read_json,
+    sha256_file,
+    write_json_atomic,
+    write_text_atomic,
+)
 from lhf_hf.utils.launcher import end_ranks
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
-from .card import MODEL_EVALS_FILE, plot_loss, render_model_card, write_model_card
+from .card import MODEL_EVALS_FILE, plot_loss, write_model_card
 from .collators import make_collator
 from .windows import HistoryArrays, WindowDataset, load_arrays
 
@@ -67,19 +73,11 @@ MAX_SAMPLER_DRAWS = 1 << 24
 class WindowTrainer(Trainer):
     """Trainer that draws windows uniformly with replacement (every history copy equally often).
 
-    With ``push_to_hub`` the final push carries the lhf model card (``lhf_card``: the config and
-    provenance, set by ``train``) instead of Trainer's generic one.
+    The model card is ours (``train`` writes it, and pushes the finished folder with it), so
+    Trainer's generic card is never written.
     """
 
-    lhf_card: tuple | None = None
-
     def create_model_card(self, *args, **kwargs):
-        if self.lhf_card is None or not self.is_world_process_zero():
-            return None
-
-        config, provenance = self.lhf_card
-        text = render_model_card(config, provenance, load_path=self.args.hub_model_id)
-        write_text_atomic(text, Path(self.args.output_dir) / "README.md")
         return None
 
     def _save(self, output_dir: str | None = None, state_dict=None):
@@ -87,6 +85,8 @@ class WindowTrainer(Trainer):
         super()._save(output_dir, state_dict)
         if self.args.should_save:
             out = Path(output_dir if output_dir is not None else self.args.output_dir)
+            for weights in out.glob("model*.safetensors"):  # 0600 from safetensors: the umask's
+                give_umask_mode(weights)
             (out / PICKLED_TRAINING_ARGS).unlink(missing_ok=True)
             write_text_atomic(self.args.to_json_string(), out / TRAINING_ARGS_FILE)
             identity = getattr(self, "lhf_identity", None)
@@ -95,9 +95,11 @@ class WindowTrainer(Trainer):
 
     def _get_train_sampler(self, train_dataset=None):
         ds = train_dataset if train_dataset is not None else self.train_dataset
-        return torch.utils.data.RandomSampler(
-            ds, replacement=True, num_samples=min(len(ds), MAX_SAMPLER_DRAWS)
-        )
+        # A whole number of global batches per pass: every step sees the batch size asked for
+        # (a pass ending in a short batch would give some steps fewer windows).
+        batch = self.args.per_device_train_batch_size * self.args.world_size
+        draws = max(batch, min(len(ds), MAX_SAMPLER_DRAWS) // batch * batch)
+        return torch.utils.data.RandomSampler(ds, replacement=True, num_samples=draws)
 
 
 class _PushCheckpoints(TrainerCallback):
@@ -224,6 +226,34 @@ def check_model_env(config: ICRLConfig, spec) -> None:
         )
 
 
+def split_coverage(spec, tasks: list[int], split_seed: int) -> dict:
+    """How the training tasks sit in their split: counts of train and test tasks among them."""
+    train, test = spec.split(split_seed)
+    test_in = sorted(set(tasks) & set(test))
+    return {
+        "train_tasks": len(set(tasks) & set(train)),
+        "test_tasks": len(test_in),
+        "of_train": len(train),
+        "of_test": len(test),
+        "test_tasks_trained_on": test_in,
+    }
+
+
+def describe_coverage(env_id: str, split_seed: int, cov: dict) -> str:
+    """One line for the user: which part of the split the training data covers."""
+    head = (
+        f"lhf: training data: {cov['train_tasks']} of the {cov['of_train']} train tasks of "
+        f"{env_id} split seed {split_seed}"
+    )
+    if not cov["test_tasks"]:
+        return f"{head}; its {cov['of_test']} test tasks stay unseen"
+    return (
+        f"{head} and {cov['test_tasks']} of its {cov['of_test']} test tasks: those are seen, and "
+        "`lhf evaluate` refuses them without --allow-seen (collect with --tasks train to keep "
+        "the test tasks unseen)"
+    )
+
+
 # ---------------------------------------------------------------------------- selection
 def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.ndarray, dict]:
     """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
@@ -257,6 +287,11 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
     has_optimal = C.OPTIMAL_ACTION in ds.info.get("features", {})
     config = model_config or model_config_for(spec, cfg, has_optimal)
     check_model_env(config, spec)
+    # What the model saw, in its config (so every checkpoint-N carries it): evaluation refuses
+    # these tasks as "unseen" (they are not), and takes its default split from here.
+    split_seed = int(ds.lhf.get("split_seed", 0))
+    data_tasks = sorted({int(t) for t in ds.histories.data.table.column("task_index").to_pylist()})
+    config.train_tasks, config.split_seed = data_tasks, split_seed
     if config.objective != cfg.objective:
         raise ValueError(
             f"model objective {config.objective!r} != train objective {cfg.objective!r}"
@@ -277,6 +312,12 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
             f"{config.context_length} and {shortest}"
         )
     windows = WindowDataset(arrays, length, counts)
+    if cfg.batch_size > len(windows):
+        raise ValueError(
+            f"--batch-size {cfg.batch_size} is larger than the {len(windows)} training windows of "
+            f"{length} transitions in {cfg.dataset}: pass --batch-size {len(windows)} or less, or "
+            "a shorter --context-length"
+        )
     collator = make_collator(arrays, config, length)
 
     # The launcher's WORLD_SIZE, read before TrainingArguments sets up the process group (a bare
@@ -304,6 +345,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         report_to="none",
         remove_unused_columns=False,
         dataloader_num_workers=0,
+        dataloader_drop_last=True,  # with the sampler's whole batches, no step is short
         ddp_find_unused_parameters=False,
         use_cpu=not torch.cuda.is_available(),
         # Trainer creates the repo; _PushCheckpoints pushes each saved checkpoint's weights as it
@@ -328,7 +370,9 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         "dataset": {
             "path": ds.source,
             "env_id": ds.env_id,
-            "split_seed": int(ds.lhf.get("split_seed", 0)),
+            "split_seed": split_seed,
+            "tasks": data_tasks,
+            "split_coverage": split_coverage(spec, data_tasks, split_seed),
             "fingerprint": ds.fingerprint,
             "total_histories": int(arrays.num_histories),
             "total_frames": int(len(arrays.rewards)),
@@ -338,6 +382,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         "sequence_length": length if config.attention == "band" else None,
         "reward_weighting": config.reward_weighting,  # resolved (``train`` keeps the flag as given)
         "world_size": world,
+        "world_sizes": [[0, world]],  # with resumes at other world sizes: [first step, processes]
         "per_device_batch_size": cfg.batch_size // world,
     }
     trainer.lhf_identity = train_identity(cfg, config, provenance)
@@ -359,6 +404,9 @@ def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> di
         "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
         "dataset_fingerprint": provenance["dataset"]["fingerprint"],
         "selection_fingerprint": selection.get("counts_sha256"),
+        # [first step, processes] of each stretch of the run (not compared by --resume: the
+        # global batch is the same at any world size; recorded so a resumed run says how it ran)
+        "world_sizes": [[0, provenance["world_size"]]],
     }
 
 
@@ -370,7 +418,7 @@ def check_resume(checkpoint: str, identity: dict) -> None:
             f"--resume: {checkpoint} does not record what it was trained with ({IDENTITY_FILE}), "
             "so resuming it cannot be checked; train afresh with --overwrite"
         )
-    old = json.loads(path.read_text())
+    old = read_json(path)
     diff = []
     for part in ("train", "model"):
         for k in sorted(set(old.get(part, {})) | set(identity[part])):
@@ -413,7 +461,7 @@ def last_checkpoint(folder: str | Path) -> str | None:
             numbered.append((int(step), path))
     for _, path in sorted(numbered, reverse=True):
         try:
-            json.loads((path / TRAINER_STATE_FILE).read_text())
+            read_json(path / TRAINER_STATE_FILE)
             return str(path)
         except (OSError, ValueError):
             pass
@@ -447,7 +495,19 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
                 raise FileNotFoundError(
                     f"--resume: no complete checkpoint-* folder in {out} to resume from: {fix}"
                 )
-        return _train_into(cfg, model_config, out, resume)
+        step = _train_into(cfg, model_config, out, resume)
+    # The final push, once the folder is whole and has its manifest: it is checked and pushed like
+    # `lhf push` (manifest, card, no optimizer states), and the Hub copy verifies when loaded.
+    if cfg.push_to_hub and int(os.environ.get("RANK", "0")) == 0:
+        from .artifact import CheckpointArtifact  # deferred: artifact imports this module
+
+        CheckpointArtifact.push(
+            out,
+            cfg.push_to_hub,
+            private=cfg.hub_private,
+            commit_message=f"lhf train: final model, step {step}",
+        )
+    return out
 
 
 #: Files of a model folder written before output markers existed (``utils.outputs``).
@@ -478,13 +538,21 @@ def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resum
     write_model_card(out, trainer.model.config, provenance)
 
 
-def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> Path:
+def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> int:
     trainer, provenance = build_trainer(cfg, model_config)
     if resume is not None:
         check_resume(resume, trainer.lhf_identity)
+        check_weights(Path(resume), trainer.model.config)  # a damaged checkpoint: one line
+        step = read_json(Path(resume) / TRAINER_STATE_FILE).get("global_step")
+        before = read_json(Path(resume) / IDENTITY_FILE).get("world_sizes") or [[0, None]]
+        world = provenance["world_size"]
+        sizes = before if before[-1][1] == world else [*before, [step, world]]
+        trainer.lhf_identity["world_sizes"] = provenance["world_sizes"] = sizes
         if trainer.is_world_process_zero():  # what a rerun goes on from: said, not guessed
-            step = json.loads((Path(resume) / TRAINER_STATE_FILE).read_text()).get("global_step")
             print(f"lhf: resuming from {resume} (step {step} of {cfg.max_steps})", file=sys.stderr)
+    if trainer.is_world_process_zero():
+        d = provenance["dataset"]
+        print(describe_coverage(d["env_id"], d["split_seed"], d["split_coverage"]), file=sys.stderr)
     t0 = time.perf_counter()
     result = trainer.train(resume_from_checkpoint=resume)
     wall = time.perf_counter() - t0
@@ -493,13 +561,6 @@ def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -
             _write_model(trainer, cfg, out, provenance, result, resume, wall)
     finally:  # after rank 0's writes; a failed one still releases the other ranks
         end_ranks()
-    # Rank 0 alone, after the group is gone: Trainer.push_to_hub -> save_model(_internal_call)
-    # -> _save -> save_pretrained needs no collective for a DDP model on one rank (checked for
-    # transformers 5.x; FSDP / DeepSpeed / tensor parallel are not used here), and an upload
-    # longer than the group's timeout would otherwise fail rank 1 at the barrier.
-    if cfg.push_to_hub and trainer.is_world_process_zero():
-        trainer.lhf_card = (trainer.model.config, provenance)
-        trainer.push_to_hub(
-            commit_message=f"lhf train: final model, step {trainer.state.global_step}"
-        )
-    return out
+    # ``train`` pushes the final folder, rank 0 alone and after the group is gone (an upload
+    # longer than the group's timeout would otherwise fail rank 1 at the barrier).
+    return trainer.state.global_step

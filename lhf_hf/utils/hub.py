@@ -15,6 +15,8 @@ token and cache come from the usual ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HOME``
 
 from __future__ import annotations
 
+import json
+import os
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -39,6 +41,9 @@ from huggingface_hub.errors import (
 from huggingface_hub.utils import validate_repo_id as _validate
 
 from lhf_hf import constants as C
+
+from .io import read_json, sha256_file
+from .outputs import MARKER, check_manifest
 
 #: Never uploaded: Trainer's intermediate checkpoints (optimizer state), hidden and private files,
 #: half-written temporaries and the pickled TrainingArguments.
@@ -107,13 +112,15 @@ def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
             "ORG/NAME[@REVISION])"
         )
     try:
-        return download(ref, repo_type)
+        path = download(ref, repo_type)
     except HubError as exc:
         why = str(exc).splitlines()[0]
         raise HubError(
             f"no {what} at {str(spec)!r}: no local folder of that name, and no Hub {repo_type} "
             f"repo {ref} ({why})"
         ) from None
+    check_snapshot(path, ref)
+    return path
 
 
 def download(ref: HubRef, repo_type: str) -> Path:
@@ -152,15 +159,78 @@ def source_of(spec: str | Path, path: Path) -> str:
 
 # ---------------------------------------------------------------------------- push
 def upload_files(root: Path) -> list[str]:
-    """Relative paths (posix) of the files ``push`` uploads from ``root``, sorted."""
+    """Relative paths (posix) of the files ``push`` uploads from ``root``, sorted.
+
+    Regular files inside the folder only: a symbolic link (to a file or a folder) is refused, never
+    followed, so a push cannot upload what lies outside the artifact (a link to ``~/.ssh``).
+    """
     out = []
-    for p in sorted(root.rglob("*")):
-        rel = p.relative_to(root)
-        if any(_EXCLUDED_DIRS.match(part) for part in rel.parts[:-1]):
+    for folder, dirs, files in os.walk(root, followlinks=False):
+        here = Path(folder)
+        rel_dir = here.relative_to(root)
+        if any(_EXCLUDED_DIRS.match(part) for part in rel_dir.parts):
+            dirs[:] = []
             continue
-        if p.is_file() and not _EXCLUDED_FILES.match(p.name):
-            out.append(rel.as_posix())
-    return out
+        for name in [*dirs, *files]:
+            if (here / name).is_symlink() and not (
+                _EXCLUDED_DIRS.match(name) if name in dirs else _EXCLUDED_FILES.match(name)
+            ):
+                raise HubError(
+                    f"{here / name} is a symbolic link (to {os.readlink(here / name)}): push "
+                    "uploads the artifact's own files only; replace it with the file itself"
+                )
+        for name in files:
+            if not _EXCLUDED_FILES.match(name):
+                out.append((rel_dir / name).as_posix())
+    return sorted(out)
+
+
+def pushed_manifest(root: Path, files: list[str]) -> bytes | None:
+    """The output marker a push uploads beside the files (``utils.outputs``): the folder's kind,
+    and the SHA-256 of each uploaded file, the card left out (the push renders its own).  A load
+    from the Hub checks the downloaded snapshot against it (``resolve``).  None: no marker."""
+    try:
+        marker = read_json(root / MARKER)
+    except (OSError, ValueError):
+        return None
+    pushed = {
+        "kind": marker.get("kind"),
+        "lhf_hf": marker.get("lhf_hf"),
+        "mutable": sorted({*marker.get("mutable", ()), C.CARD_PATH}),
+        "files": {f: sha256_file(root / f) for f in files if f != C.CARD_PATH},
+    }
+    return json.dumps(pushed, indent=2, sort_keys=True).encode()
+
+
+def check_pushable(root: Path) -> None:
+    """Refuse a folder whose command has not finished, or whose files changed since it did (its
+    manifest, ``utils.outputs``): the Hub copy would pass every later check while describing
+    something else."""
+    kind, problems = check_manifest(root)
+    if kind is None:
+        raise HubError(
+            f"{root} has no {MARKER}: it was not written by an lhf command (or is older than "
+            "manifests), so what it holds cannot be verified; not pushed"
+        )
+    if problems:
+        shown = "; ".join(problems[:5]) + (
+            f"; and {len(problems) - 5} more" if len(problems) > 5 else ""
+        )
+        raise HubError(f"{root} is not the {kind} its command wrote ({shown}): not pushed")
+
+
+def check_snapshot(path: Path, ref: HubRef) -> None:
+    """A downloaded snapshot against the manifest its push uploaded (none: nothing to check)."""
+    if not (path / MARKER).is_file():
+        return
+    _, problems = check_manifest(path)
+    if problems:
+        shown = "; ".join(problems[:5]) + (
+            f"; and {len(problems) - 5} more" if len(problems) > 5 else ""
+        )
+        raise HubError(
+            f"{ref}: the files on the Hub are not those `lhf push` uploaded ({shown}); not loaded"
+        )
 
 
 def _require_token(token: str | None) -> None:
@@ -203,6 +273,9 @@ def push_folder(
     files = upload_files(path)
     ops = [CommitOperationAdd(f, str(path / f)) for f in files if f != C.CARD_PATH]
     ops.append(CommitOperationAdd(C.CARD_PATH, card.encode()))
+    manifest = pushed_manifest(path, files)
+    if manifest is not None:
+        ops.append(CommitOperationAdd(MARKER, manifest))
     api = HfApi(token=token)
     step = "create the repo"
     try:
@@ -246,8 +319,8 @@ def push_folder(
         "revision": branch,
         "commit": info.oid,
         "url": str(info.commit_url),
-        "uploaded": len(files) + (C.CARD_PATH not in files),
-        "deleted": len(ops) - len(files) - (C.CARD_PATH not in files),
+        "uploaded": len(files) + (C.CARD_PATH not in files) + (manifest is not None),
+        "deleted": len(ops) - len(files) - (C.CARD_PATH not in files) - (manifest is not None),
         "tag": tag,
     }
 
@@ -293,7 +366,12 @@ class HubArtifact(ABC):
         """Check, render the card, push as one commit: ``{kind, **push_folder's result}``."""
         path = Path(path)
         validate_repo_id(repo_id)
-        cls.check(path)
+        check_pushable(path)  # finished, and unchanged since its command wrote it
+        problems = cls.verify(path)  # and sound by its kind's deepest check (what readers check)
+        if problems:
+            raise HubError(
+                f"{path} fails its {cls.kind} checks ({'; '.join(problems[:5])}): not pushed"
+            )
         card = cls.card(path, repo_id)
         out = push_folder(
             path, repo_id, repo_type=cls.repo_type, card=card, what=cls.kind, tag=cls.tag, **kwargs

@@ -23,6 +23,25 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+def read_json(path: str | os.PathLike):
+    """The JSON value in ``path``; a malformed file is a ``ValueError`` naming it (json's own
+    message gives only a line and column)."""
+    path = Path(path)
+    text = path.read_text()
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        raise ValueError(
+            f"{path} is not valid JSON ({exc}): the file is damaged or not ours"
+        ) from None
+
+
+def give_umask_mode(path: str | os.PathLike) -> None:
+    """Give a file written by another library the mode a new file gets (``0o666 & ~umask``):
+    safetensors writes its files through a 0600 temporary, whatever the umask."""
+    os.chmod(path, 0o666 & ~_UMASK)
+
+
 def _tmp_for(path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

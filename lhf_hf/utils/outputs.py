@@ -10,10 +10,14 @@ evaluate, compare, reproduce):
   files), and then only with ``resume`` (continue it) or ``overwrite`` (replace it).  Anything else
   (someone's files, an artifact of another kind) is never written into or deleted.
 - The folder may not be or contain an input of the same command (replacing it would delete the
-  input); a folder inside an input is allowed (``lhf evaluate --model m --out m/eval``).
+  input); a folder inside an input is allowed (``lhf evaluate --model m --out m/eval``), except
+  inside an input dataset (it would become part of the dataset).
 - On success the marker records every file's SHA-256 (a manifest; hidden files and the ``mutable``
   ones, e.g. a model card that later evaluations update, left out): ``check_manifest`` and
   ``lhf verify`` find what changed since.
+- ``overwrite`` replaces only what the command wrote: a finished artifact holding anything its
+  manifest does not list (files added later, a nested artifact such as ``--out MODEL/eval``) is
+  refused with their names, never deleted (an old evaluation would not describe the new model).
 - ``overwrite`` is atomic at the folder level: the old artifact is renamed aside
   (``.NAME.replaced-PID``), the new one is written under the name, and the old one is deleted only
   once the command succeeded; an error or Ctrl-C puts the old one back (if it was deleted
@@ -36,7 +40,8 @@ from pathlib import Path
 
 from lhf_hf import __version__
 
-from .io import sha256_file, write_json_atomic
+from .io import read_json, sha256_file, write_json_atomic
+from .signals import interrupts_ignored
 
 MARKER = ".lhf_output.json"
 
@@ -47,7 +52,7 @@ class OutputError(FileExistsError):
 
 def _marker_kind(path: Path) -> str | None:
     try:
-        return json.loads((path / MARKER).read_text()).get("kind")
+        return read_json(path / MARKER).get("kind")
     except (OSError, ValueError, AttributeError):
         return None
 
@@ -87,6 +92,14 @@ def check_not_an_input(out: Path, inputs: Iterable[str | Path | None]) -> None:
             raise OutputError(
                 f"the output folder {out} {relation} the input {given}: choose another output"
             )
+        if _is_within(target, src) and _marker_kind(src) == "dataset":
+            # a dataset folder is read whole (datasets.load_dataset, the data/ globs, the
+            # manifest's added-file check): an output inside it would change the dataset
+            raise OutputError(
+                f"the output folder {out} is inside the input dataset {given}: its files would "
+                "become part of the dataset (datasets.load_dataset and lhf verify read the whole "
+                "folder); choose an output outside it"
+            )
 
 
 def _listed_files(root: Path, mutable: Iterable[str]) -> list[Path]:
@@ -104,6 +117,33 @@ def _listed_files(root: Path, mutable: Iterable[str]) -> list[Path]:
     return sorted(out)
 
 
+def _not_written_by_it(root: Path, own_nested: Iterable[str] = ()) -> list[str]:
+    """What a finished artifact holds beyond its manifest: files added since (a user's notes) and
+    nested artifacts (``lhf evaluate --out MODEL/eval``) other than those of the ``own_nested``
+    kinds, which the command writes itself (a report's comparisons).  An unfinished artifact (no
+    manifest) has nothing to compare with: [] (it is replaced whole, as before)."""
+    try:
+        marker = read_json(root / MARKER)
+    except (OSError, ValueError):
+        return []
+    files = marker.get("files") if isinstance(marker, dict) else None
+    if files is None:
+        return []
+    nested = []
+    for folder, dirs, _ in os.walk(root):
+        here = Path(folder)
+        for d in list(dirs):
+            if (here / d / MARKER).exists():
+                kind = _marker_kind(here / d) or "output"
+                if kind not in own_nested:
+                    nested.append(f"{(here / d).relative_to(root)}/ (an lhf {kind})")
+                dirs.remove(d)
+    added = [
+        str(rel) for rel in _listed_files(root, marker.get("mutable", ())) if str(rel) not in files
+    ]
+    return sorted(nested) + added
+
+
 def record_manifest(out: Path, kind: str, mutable: Iterable[str] = ()) -> None:
     """Write the marker with the SHA-256 of every file of ``out`` (hidden and ``mutable`` ones
     left out)."""
@@ -119,7 +159,7 @@ def check_manifest(path: str | Path, prefix: str | None = None) -> tuple[str | N
     ``prefix``: only the recorded files under it (e.g. ``meta/``), and no added-file check."""
     path = Path(path)
     try:
-        marker = json.loads((path / MARKER).read_text())
+        marker = read_json(path / MARKER)
     except (OSError, ValueError):
         return None, [f"{path} has no {MARKER} (written before manifests, or not by lhf_hf)"]
     files = marker.get("files")
@@ -166,6 +206,18 @@ def _lock(out: Path) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
+@contextmanager
+def file_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``path`` (created) for a read-modify-write of a shared file,
+    e.g. a model's evaluations list that concurrent ``lhf evaluate`` runs append to; waits."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
 def _stale_replacements(out: Path) -> list[Path]:
     return sorted(out.parent.glob(f".{out.name}.replaced-*"))
 
@@ -175,7 +227,7 @@ def _only_in_progress_marker(path: Path) -> bool:
     if [p.name for p in _content(path)] != [MARKER]:
         return False
     try:
-        return "files" not in json.loads((path / MARKER).read_text())
+        return "files" not in read_json(path / MARKER)
     except (OSError, ValueError, TypeError):
         return False
 
@@ -204,6 +256,7 @@ def preflight(
     inputs: Iterable[str | Path | None] = (),
     legacy: Iterable[str] = (),
     resumable: bool = False,
+    own_nested: Iterable[str] = (),
 ) -> Path:
     """The checks of ``output_folder`` without writing anything: whether ``out`` may be written
     as asked (raises ``OutputError`` if not).  Returns the real path (symlinks resolved)."""
@@ -227,6 +280,16 @@ def preflight(
             raise OutputError(
                 f"{given} has no {MARKER} (written before lhf_hf marked its outputs, or not by "
                 f"lhf_hf): refusing to replace it; delete it yourself if it is yours"
+            )
+        foreign = _not_written_by_it(real, tuple(own_nested)) if overwrite else []
+        if foreign:
+            shown = ", ".join(foreign[:6]) + (
+                f" and {len(foreign) - 6} more" if len(foreign) > 6 else ""
+            )
+            raise OutputError(
+                f"{given} holds {len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'} its "
+                f"{kind} did not write ({shown}): --overwrite replaces only what the command "
+                "wrote; move them out (or delete them), then overwrite"
             )
         if not overwrite and not resume:
             hint = "--resume to continue it or " if resumable else ""
@@ -260,6 +323,9 @@ def output_folder(
     legacy: Iterable[str] = (),
     resumable: bool = False,
     mutable: Iterable[str] = (),
+    own_nested: Iterable[str] = (),
+    linked: list | None = None,
+    defer_to: list | None = None,
 ) -> Iterator[Path]:
     """Claim ``out`` for writing an artifact of ``kind`` (see the module docstring).
 
@@ -271,8 +337,17 @@ def output_folder(
         existed.
     resumable: the command can continue an interrupted run (named in the error message).
     mutable: files (relative paths) other commands update later: left out of the manifest.
+    own_nested: kinds of the artifacts the command itself writes inside ``out`` (a report's
+        comparisons): replaced with it; any other nested artifact makes ``overwrite`` refuse.
+    linked / defer_to: two artifacts that must change together (a selection and the dataset
+        materialised from it): the second, claimed inside the first's block with
+        ``defer_to=L``, keeps its set-aside old copy until the first, claimed with ``linked=L``,
+        has switched; if the first fails or is interrupted after the second switched, the
+        second's old copy is put back too.  (A second with no old copy keeps its new one.)
     """
-    checks = dict(overwrite=overwrite, resume=resume, inputs=inputs, legacy=legacy)
+    checks = dict(
+        overwrite=overwrite, resume=resume, inputs=inputs, legacy=legacy, own_nested=own_nested
+    )
     real = preflight(out, kind, resumable=resumable, **checks)
     with _lock(real):
         preflight(out, kind, resumable=resumable, **checks)  # again, now that we hold the lock
@@ -297,10 +372,27 @@ def output_folder(
         write_json_atomic({"kind": kind, "lhf_hf": __version__}, marker)
         try:
             yield real
-        except BaseException:
+            # The switch from old to new runs whole: an interrupt landing in it would leave the
+            # new artifact without its manifest or the old one half deleted.  One landing before
+            # it (in this very line) still puts the old one back below.
+            with interrupts_ignored():
+                record_manifest(real, kind, mutable)
+                if defer_to is not None:  # the enclosing artifact deletes it when it switches
+                    defer_to.append((real, replaced))
+                elif replaced is not None:
+                    shutil.rmtree(replaced, ignore_errors=True)
+                for _, aside in linked or ():
+                    if aside is not None:
+                        shutil.rmtree(aside, ignore_errors=True)
+        except BaseException as exc:
+            if linked:
+                _put_back_linked(linked)
             if replaced is not None and (replaced / MARKER).is_file():  # put it back: nothing lost
-                shutil.rmtree(real, ignore_errors=True)
-                os.replace(replaced, real)
+                with interrupts_ignored():
+                    shutil.rmtree(real, ignore_errors=True)
+                    os.replace(replaced, real)
+                if isinstance(exc, KeyboardInterrupt | SystemExit):
+                    print(f"lhf: {out} holds the earlier {kind} again (unchanged)", file=sys.stderr)
             elif replaced is not None:  # someone deleted it (or part): keep this run's part
                 hint = "--resume or --overwrite" if resumable else "--overwrite"
                 print(
@@ -320,9 +412,17 @@ def output_folder(
             # in-progress marker stays, so that --resume continues it or --overwrite replaces it
             # (without a marker both would refuse it as someone's files)
             raise
-        record_manifest(real, kind, mutable)
-        if replaced is not None:
-            shutil.rmtree(replaced, ignore_errors=True)
+
+
+def _put_back_linked(linked: list) -> None:
+    """The enclosing artifact failed after linked ones switched: their old copies come back."""
+    with interrupts_ignored():
+        for real, aside in linked:
+            if aside is not None and (aside / MARKER).is_file():
+                shutil.rmtree(real, ignore_errors=True)
+                os.replace(aside, real)
+                print(f"lhf: {real} holds its earlier version again (unchanged)", file=sys.stderr)
+        linked.clear()
 
 
 def _restore_marker(real: Path, before: str | None) -> None:

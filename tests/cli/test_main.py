@@ -53,3 +53,22 @@ def test_main_called_with_argv_leaves_signals_as_they_were(monkeypatch, handlers
     assert signal.getsignal(signal.SIGINT) is handlers[signal.SIGINT]
     assert signal.getsignal(signal.SIGTERM) is handlers[signal.SIGTERM]
     assert "lhf envs: terminated" in capsys.readouterr().err
+
+
+def test_what_the_machine_refuses_is_one_line(tmp_path, capsys):
+    """Too much memory asked, a name too long, a malformed file: one line naming it, exit 1."""
+    out = tmp_path / "d"
+    assert main(["collect", "darkroom", "--out", str(out), "--tasks", "3", "--histories", "4",
+                 "--steps", "1000000000000", "--collector", "batched", "--no-progress"]) == 1  # fmt: skip
+    err = capsys.readouterr().err
+    assert "not enough memory for what was asked" in err and "Traceback" not in err
+    assert main(["collect", "darkroom", "--out", str(tmp_path / ("x" * 300)), "--tasks", "3"]) == 1
+    err = capsys.readouterr().err
+    assert "File name too long" in err and "Traceback" not in err
+    assert main(["filter", str(out), "--out", str(tmp_path / "s"), "--lam", "1e308"]) == 1
+    assert "lam must be between 0 and 1e+06" in capsys.readouterr().err
+    model = tmp_path / "m"
+    model.mkdir()
+    (model / "config.json").write_text("{not json")
+    assert main(["evaluate", "--model", str(model), "--out", str(tmp_path / "e")]) == 1
+    assert f"{model / 'config.json'} is not a readable model config" in capsys.readouterr().err

@@ -78,7 +78,17 @@ def test_existing_outputs_need_overwrite(data, tmp_path, capsys):
     # evaluate: earlier results are not silently replaced
     model = str(tmp_path / "m")
     assert main(["train", "--dataset", str(data), "--out", model, *TRAIN]) == 0
-    ev = ["evaluate", "--model", model, "--episodes", "1", "--tasks", "3", "--out", f"{model}/eval"]
+    ev = [
+        "evaluate",
+        "--model",
+        model,
+        "--episodes",
+        "1",
+        "--tasks",
+        "38",
+        "--out",
+        f"{model}/eval",
+    ]
     assert main(ev) == 0
     capsys.readouterr()
     assert main(ev) == 1

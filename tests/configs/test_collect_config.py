@@ -40,7 +40,8 @@ def test_tasks_and_presets():
     assert CollectConfig("darkroom", tasks="test").tasks == sorted(
         __import__("lhf_hf.envs", fromlist=["task_split"]).task_split("darkroom", 0)[1]
     )
-    assert len(CollectConfig("darkroom").tasks) == 81
+    assert len(CollectConfig("darkroom", tasks="all").tasks) == 81
+    assert len(CollectConfig("darkroom").tasks) == 73  # the train split by default
     assert CollectConfig("darkroom", tasks="7, 3,3").tasks == [3, 7]
     assert (
         ppo_preset("dark-key-to-door").n_epochs == 10

@@ -17,7 +17,9 @@ from lhf_hf.modeling import ICRLModel
 from lhf_hf.training import model_config_for
 
 
-def darkroom_model(objective="ad", layers=1, context=10, seed=0):
+def darkroom_model(objective="ad", layers=1, context=10, seed=0, split_seed=0):
+    """A tiny untrained model that records, as ``lhf train`` would, the train goals of
+    ``split_seed`` as its training tasks (so its test goals are unseen)."""
     cfg = model_config_for(
         get_spec("darkroom"),
         TrainConfig(
@@ -26,6 +28,7 @@ def darkroom_model(objective="ad", layers=1, context=10, seed=0):
         True,
     )
     cfg.num_hidden_layers = layers
+    cfg.train_tasks, cfg.split_seed = sorted(task_split("darkroom", split_seed)[0]), split_seed
     torch.manual_seed(seed)
     return ICRLModel(cfg).eval()
 
@@ -119,7 +122,7 @@ def test_same_seed_same_rollout_other_seed_differs():
 def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     from lhf_hf.training.card import write_model_card
 
-    model = darkroom_model("dicp")
+    model = darkroom_model("dicp", split_seed=3)
     model.save_pretrained(tmp_path / "m")
     prov = {
         "train": TrainConfig(dataset="d", objective="dicp", out="m").to_dict(),
@@ -159,7 +162,7 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     card = (tmp_path / "m" / "README.md").read_text()
     flat = " ".join(card.split())  # the model-index YAML may fold long names
     assert (
-        "| darkroom | 8 test x 4 | 3 | 0 |" in card
+        "| darkroom | 8 test x 4 | unseen tasks | 3 | 0 |" in card
         and "(seed 0, 4 rollouts per task, context window)" in flat
     )
 
@@ -397,3 +400,19 @@ def test_metaworld_rollout_with_greedy_planning():
     assert np.all(np.abs(r.actions) <= 1)
     with pytest.raises(ValueError, match="gates the beam search of discrete-action envs"):
         rollout(model, batch, 1, plan=True, plan_gate="reward_seen", progress=False)
+
+
+def test_compare_with_a_zero_baseline_writes_valid_json(tmp_path):
+    """E divides by the baseline's return: at 0 it is undefined, said in the table and JSON (no
+    NaN, which is not JSON), and the paired differences still judge the cell."""
+    base = [fake_eval(tmp_path / f"b{i}", "ad", [0, 0]) for i in range(2)]
+    lhf = [fake_eval(tmp_path / f"l{i}", "ad", c) for i, c in enumerate([[1, 1], [2, 2]])]
+    r = compare(base, lhf, tmp_path / "cmp")
+    text = (tmp_path / "cmp" / "compare.json").read_text()
+    row = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in compare.json"))["rows"][0]
+    assert row["E"] is None and "baseline's mean return is 0" in row["E_note"]
+    assert row["E_std"] is None and row["diff"] == 1.5
+    assert "| AD | 0.00 ± 0.00 | 1.50 ± 0.50 | undefined (baseline 0) |" in r["table"]
+    from lhf_hf.reproduce.report import verdict
+
+    assert verdict(None, None, None, None) == "undefined (baseline return 0)"

@@ -146,3 +146,57 @@ def test_cli_bad_input_writes_nothing(small_darkroom, tmp_path, capsys):
     assert main(["filter", str(bad), "--out", str(tmp_path / "b")]) == 1
     assert "history 4: returns contain NaN" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
+
+
+def _digest(root):
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*")):
+        h.update(str(p.relative_to(root)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("when", ["after the selection's last write", "in materialize's writes"])
+def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
+    small_darkroom, tmp_path, monkeypatch, capsys, when
+):
+    """Ctrl-C once the new materialised dataset has switched but before the selection has (or
+    earlier): both old copies come back, so the dataset still matches its selection."""
+    from lhf_hf.filtering import run as run_mod
+    from lhf_hf.filtering.run import run_filter
+
+    sel, mat = tmp_path / "sel", tmp_path / "mat"
+    run_filter(small_darkroom.root, sel, FilterConfig(), materialize=mat, progress=False)
+    before = _digest(sel), _digest(mat)
+    if when == "in materialize's writes":
+
+        def boom(*args, **kwargs):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(run_mod, "materialize_histories", boom)
+    else:
+        from lhf_hf.filtering.select import Selection
+
+        saves = []
+        real_save = Selection.save
+
+        def save_then_stop(self, *args, **kwargs):
+            saves.append(1)
+            if len(saves) == 2:  # the summary re-saved after materialize
+                raise KeyboardInterrupt
+            return real_save(self, *args, **kwargs)
+
+        monkeypatch.setattr(Selection, "save", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_filter(small_darkroom.root, sel, FilterConfig(lam=0.0), materialize=mat,
+                   overwrite=True, progress=False)  # fmt: skip
+    assert (_digest(sel), _digest(mat)) == before
+    assert not list(tmp_path.glob(".*.replaced-*"))
+    monkeypatch.undo()
+    run_filter(small_darkroom.root, sel, FilterConfig(lam=0.0), materialize=mat, overwrite=True,
+               progress=False)  # fmt: skip
+    assert load_histories(mat).lhf["derived_from"]["filter"]["lam"] == 0.0
+    assert json.loads((sel / "filter_config.json").read_text())["filter"]["lam"] == 0.0

@@ -101,3 +101,24 @@ def test_derive_half(small_darkroom, tmp_path):
     assert "Derived dataset" in (half.root / "README.md").read_text()
     with pytest.raises(ValueError, match="less than one episode"):
         derive_half(small_darkroom.root, tmp_path / "tiny", fraction=0.01, progress=False)
+
+
+def test_derive_refuses_a_source_that_fails_verify(small_darkroom, tmp_path):
+    """Zeroed actions in a data file keep its rows and columns (so it loads), but no longer hash
+    to the fingerprint: nothing is derived from it."""
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from lhf_hf.histories.derive import derive_half
+
+    src = tmp_path / "src"
+    shutil.copytree(small_darkroom.root, src)
+    f = src / "data/chunk-000/file-000.parquet"
+    t = pq.read_table(f)
+    i = t.schema.get_field_index(C.ACTION)
+    pq.write_table(t.set_column(i, C.ACTION, pa.array([0] * t.num_rows, t.schema.field(i).type)), f)
+    with pytest.raises(ValueError, match="fails `lhf verify` .*fingerprint.*nothing derived"):
+        derive_half(src, tmp_path / "half", progress=False)
+    assert not (tmp_path / "half").exists()

@@ -145,12 +145,16 @@ def test_re_push_mirrors_the_folder_and_moves_the_tag(
 ):
     import shutil
 
+    from lhf_hf.utils.outputs import record_manifest
+
     repo = "lhf-test/darkroom-repush"
     copy = tmp_path / "copy"
     shutil.copytree(small_darkroom_batched.root, copy)
     (copy / "meta" / "notes.txt").write_text("first version\n")
+    record_manifest(copy, "dataset")  # an artifact whose command wrote the notes too
     first = _last_json(_ok(hub_client(fake_hub.endpoint, PUSH, str(copy), repo)))
     (copy / "meta" / "notes.txt").unlink()
+    record_manifest(copy, "dataset")
     second = _last_json(_ok(hub_client(fake_hub.endpoint, PUSH, str(copy), repo)))
     assert second["deleted"] == 1 and first["commit"] != second["commit"]
     git_repo = fake_hub.repo_path("datasets", *repo.split("/"))
@@ -221,7 +225,7 @@ print(json.dumps({{"counts": sel.counts(), "objective": m.config.objective}}))
     assert prov["dataset"]["fingerprint"] == small_darkroom_batched.fingerprint
     _ok(
         hub_client(
-            olah, CLI, "evaluate", "--model", model_repo, "--tasks", "3", "--episodes", "2",
+            olah, CLI, "evaluate", "--model", model_repo, "--tasks", "38", "--episodes", "2",
             "--out", "ev",
         )
     )  # fmt: skip
@@ -341,3 +345,58 @@ def test_upload_file_selection(tmp_path):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("x")
     assert upload_files(tmp_path) == ["config.json", "meta/info.json", "model.safetensors"]
+
+
+def test_push_publishes_only_finished_unchanged_artifacts(
+    small_darkroom_batched, fake_hub, hub_client, tmp_path
+):
+    """What the local readers would refuse is not pushed: files edited after the command wrote
+    them, an unfinished folder, a folder of unknown origin; a link is never followed out."""
+    import shutil
+
+    from lhf_hf.utils.outputs import MARKER
+
+    def copy(name):
+        out = tmp_path / name
+        shutil.copytree(small_darkroom_batched.root, out)
+        return out
+
+    edited = copy("edited")
+    stats = edited / "meta" / "stats.json"
+    stats.write_text(stats.read_text().replace('"mean"', '"mean" ', 1))
+    _fails(hub_client(fake_hub.endpoint, CLI, "push", str(edited), "--repo-id", "lhf-test/e"),
+           "meta/stats.json: changed", "not pushed")  # fmt: skip
+    unfinished = copy("unfinished")
+    (unfinished / MARKER).write_text(json.dumps({"kind": "dataset", "lhf_hf": "0"}))
+    _fails(hub_client(fake_hub.endpoint, CLI, "push", str(unfinished), "--repo-id", "lhf-test/u"),
+           "unfinished", "not pushed")  # fmt: skip
+    unmarked = copy("unmarked")
+    (unmarked / MARKER).unlink()
+    _fails(hub_client(fake_hub.endpoint, CLI, "push", str(unmarked), "--repo-id", "lhf-test/n"),
+           "cannot be verified")  # fmt: skip
+    linked = copy("linked")  # a file replaced by a link to the same bytes elsewhere
+    outside = tmp_path / "stats-outside.json"
+    shutil.copy(linked / "meta" / "stats.json", outside)
+    (linked / "meta" / "stats.json").unlink()
+    (linked / "meta" / "stats.json").symlink_to(outside)
+    _fails(hub_client(fake_hub.endpoint, CLI, "push", str(linked), "--repo-id", "lhf-test/l"),
+           "is a symbolic link")  # fmt: skip
+    for name in ("e", "u", "n", "l"):
+        assert not fake_hub.repo_path("datasets", "lhf-test", name).exists()
+
+
+def test_a_changed_hub_copy_is_refused_at_load_and_by_verify(
+    small_darkroom_batched, fake_hub, olah, hub_client, tmp_path
+):
+    repo = "lhf-test/tampered"
+    _ok(hub_client(fake_hub.endpoint, PUSH, str(small_darkroom_batched.root), repo))
+    git_repo = fake_hub.repo_path("datasets", *repo.split("/"))
+    assert ".lhf_output.json" in _git(git_repo, "ls-files").splitlines()  # the manifest travels
+    _ok(hub_client(olah, CLI, "verify", repo))
+    # someone edits the Hub copy (a web commit): loads and verify refuse it
+    stats = git_repo / "meta" / "stats.json"
+    stats.write_text(stats.read_text().replace('"mean"', '"mean" ', 1))
+    _git(git_repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-am", "edit")
+    _fails(hub_client(olah, CLI, "filter", repo, "--out", "s"),
+           "not those `lhf push` uploaded", "meta/stats.json: changed")  # fmt: skip
+    _fails(hub_client(olah, CLI, "verify", repo), "meta/stats.json: changed")

@@ -90,7 +90,7 @@ def test_index_names_an_unreadable_table_and_refuses_a_missing_root(tmp_path):
     (tmp_path / "keys" / "results.json").write_text("[]")
     text, bad = render_index(tmp_path)
     assert bad == ["broken", "keys"]
-    assert "## broken" in text and "`results.json` unreadable: JSONDecodeError" in text
+    assert "## broken" in text and "`results.json` unreadable: ValueError" in text
     with pytest.raises(FileNotFoundError, match="no results folder"):
         render_index(tmp_path / "missing")
 

@@ -405,3 +405,39 @@ def test_continuous_actions_train_on_metaworld(tmp_path_factory, objective):
     assert model.config.context_length == 40 and ds.env_id == "metaworld-reach"
     loss = losses(out)
     assert np.all(np.isfinite(loss)) and np.mean(loss[-2:]) < np.mean(loss[:2]), loss
+
+
+def test_batches_are_always_full_and_never_above_the_windows(small_darkroom, tmp_path):
+    base = dict(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+                preset="tiny", context_length=40)  # fmt: skip
+    trainer, prov = build_trainer(TrainConfig(batch_size=1000, **base))
+    assert prov["windows"] == 30 * (200 - 40 + 1)  # 4,830: not a multiple of 1,000
+    sizes = [len(b["states"]) for b in trainer.get_train_dataloader()]
+    assert sizes == [1000] * 4, sizes  # a pass of whole batches, no short last one
+    with pytest.raises(ValueError, match=r"--batch-size 5000 is larger than the 4830 training"):
+        build_trainer(TrainConfig(batch_size=5000, **base))
+
+
+def test_weights_get_the_umask_mode(small_darkroom, tmp_path):
+    """safetensors writes 0600 whatever the umask; the model's files follow the umask like every
+    other file the project writes (a shared group folder can read them)."""
+    from lhf_hf.utils.io import _UMASK
+
+    out = train(TrainConfig(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+                            preset="tiny", context_length=40, batch_size=4, max_steps=2, save_steps=2))  # fmt: skip
+    for f in [out / "model.safetensors", *out.glob("checkpoint-*/model.safetensors")]:
+        assert f.stat().st_mode & 0o777 == 0o666 & ~_UMASK, f
+
+
+def test_a_resumed_run_records_the_world_sizes_it_ran_with(small_darkroom, tmp_path):
+    cfg = dict(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+               preset="tiny", context_length=40, batch_size=4, max_steps=4, save_steps=2)  # fmt: skip
+    out = train(TrainConfig(**cfg))
+    prov = json.loads((out / "train_config.json").read_text())
+    assert prov["world_size"] == 1 and prov["world_sizes"] == [[0, 1]]
+    # as if steps 0-4 had run under a 2-process launcher: the resumed stretch is recorded beside
+    ident = out / "checkpoint-4" / "lhf_train_identity.json"
+    ident.write_text(json.dumps({**json.loads(ident.read_text()), "world_sizes": [[0, 2]]}))
+    train(TrainConfig(**cfg, resume=True))
+    prov = json.loads((out / "train_config.json").read_text())
+    assert prov["world_sizes"] == [[0, 2], [4, 1]] and prov["world_size"] == 1

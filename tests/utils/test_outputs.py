@@ -228,9 +228,12 @@ def test_inputs_are_never_the_output_or_inside_it(tmp_path):
         with output_folder(tmp_path, "dataset", overwrite=True, inputs=[str(src)]):
             pass
     # inside an input is allowed (lhf evaluate --model m --out m/eval); Hub ids are skipped
-    with output_folder(src / "eval", "evaluation", inputs=[src, "org/name", None]):
+    model = tmp_path / "model"
+    with output_folder(model, "model"):
+        (model / "w").write_text("weights")
+    with output_folder(model / "eval", "evaluation", inputs=[model, "org/name", None]):
         pass
-    assert (src / "f").read_text() == "data"
+    assert (src / "f").read_text() == "data" and (model / "w").read_text() == "weights"
 
 
 def test_a_file_is_not_a_folder(tmp_path):
@@ -324,3 +327,71 @@ def test_atomic_writes_follow_the_umask(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert mode == 0o666 & ~umask
+
+
+def test_overwrite_refuses_what_the_artifact_did_not_write(tmp_path):
+    """Files added after the artifact was written and nested artifacts (``--out MODEL/eval``) are
+    named and never deleted; the artifact's own files are replaced as before."""
+    with output_folder(tmp_path / "m", "model", mutable=["README.md"]) as m:
+        (m / "w").write_text("old")
+        (m / "README.md").write_text("card")
+    (m / "README.md").write_text("card, updated by an evaluation")  # mutable: still the model's
+    with output_folder(m / "eval", "evaluation") as ev:
+        (ev / "eval_results.json").write_text("{}")
+    (m / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match=r"2 entries its model did not write \(eval/ \(an lhf "
+                       r"evaluation\), notes.txt\)"):  # fmt: skip
+        with output_folder(m, "model", overwrite=True):
+            pytest.fail("the body must not run")
+    assert (m / "notes.txt").read_text() == "mine" and (ev / "eval_results.json").exists()
+    shutil.rmtree(ev)
+    (m / "notes.txt").unlink()
+    with output_folder(m, "model", overwrite=True) as new:
+        (new / "w").write_text("new")
+    assert (m / "w").read_text() == "new"
+
+
+def test_an_interrupt_after_the_body_puts_the_old_artifact_back(tmp_path, capsys):
+    with output_folder(tmp_path / "s", "selection") as s:
+        (s / "x").write_text("old")
+    with pytest.raises(KeyboardInterrupt):
+        with output_folder(s, "selection", overwrite=True) as new:
+            (new / "x").write_text("new")
+            raise KeyboardInterrupt  # the new copy is whole; the switch has not begun
+    assert (s / "x").read_text() == "old" and not list(tmp_path.glob(".s.replaced-*"))
+    assert "holds the earlier selection again (unchanged)" in capsys.readouterr().err
+
+
+def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch):
+    """Ctrl-C while the manifest is written and the old copy deleted: the switch completes (the
+    new artifact whole, no half-deleted aside) instead of stopping half way."""
+    import signal
+
+    import lhf_hf.utils.outputs as outputs
+
+    with output_folder(tmp_path / "s", "selection") as s:
+        (s / "x").write_text("old")
+    real_record = outputs.record_manifest
+
+    def record_then_interrupt(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # ignored within the switch
+        real_record(*args, **kwargs)
+
+    monkeypatch.setattr(outputs, "record_manifest", record_then_interrupt)
+    with output_folder(s, "selection", overwrite=True) as new:
+        (new / "x").write_text("new")
+    assert (s / "x").read_text() == "new" and not list(tmp_path.glob(".s.replaced-*"))
+    assert "files" in json.loads((s / MARKER).read_text())
+
+
+def test_an_output_inside_an_input_dataset_is_refused(tmp_path):
+    with output_folder(tmp_path / "d", "dataset") as d:
+        (d / "data.parquet").write_text("rows")
+    with pytest.raises(OutputError, match="is inside the input dataset"):
+        with output_folder(d / "data" / "sel", "selection", inputs=[d]):
+            pytest.fail("the body must not run")
+    assert _files(d) == [MARKER, "data.parquet"]
+    with output_folder(tmp_path / "m", "model") as m:  # inside a model: fine (MODEL/eval)
+        (m / "w").write_text("1")
+    with output_folder(m / "eval", "evaluation", inputs=[m]):
+        pass

@@ -1,0 +1,75 @@
+"""Which evaluation tasks a model was trained on: the guard that keeps "unseen" honest.
+
+ICRL reports returns on tasks held out of pretraining (paper section 3, "unseen test
+environments"); a return on a task the model trained on measures memory, not in-context learning.
+``lhf train`` records the training data's task indices and split seed in the model's config
+(``ICRLConfig.train_tasks`` / ``split_seed``, so every ``checkpoint-N`` carries them), and
+``lhf evaluate`` asks ``seen_tasks`` before it rolls anything out.
+"""
+
+from __future__ import annotations
+
+from lhf_hf.envs.registry import EnvSpec
+
+
+class SeenTasksError(ValueError):
+    """An evaluation asked for tasks the model trained on, without ``allow_seen``."""
+
+
+def seen_tasks(spec: EnvSpec, config, tasks: list[int], split_seed: int) -> list[int] | None:
+    """The tasks of ``tasks`` (under ``split_seed``) that ``config``'s model was trained on.
+
+    None: the model does not record its training tasks, so no task can be called unseen.
+    Gridworld task indices name the same task under every split seed; where the task content is
+    drawn from the split seed (``spec.seeded_tasks``: Meta-World ML1's goals), a task is the one
+    trained on only under the training split seed.
+    """
+    trained = getattr(config, "train_tasks", None)
+    if trained is None:
+        return None
+    if spec.seeded_tasks and getattr(config, "split_seed", None) != split_seed:
+        return []
+    trained = set(trained)
+    return sorted({t for t in tasks if t in trained})
+
+
+def check_unseen(
+    spec: EnvSpec, config, tasks: list[int], split_seed: int, allow_seen: bool, model: str
+) -> list[int] | None:
+    """``seen_tasks``, after refusing seen (or unknown) tasks unless ``allow_seen``."""
+    seen = seen_tasks(spec, config, tasks, split_seed)
+    if allow_seen:
+        return seen
+    if seen is None:
+        raise SeenTasksError(
+            f"{model} does not record the tasks it was trained on (a model not made by `lhf "
+            "train`), so none of the evaluation tasks can be called unseen: pass --allow-seen "
+            "to evaluate anyway (results are labelled 'seen tasks')"
+        )
+    if seen:
+        shown = ", ".join(map(str, seen[:12])) + (" ..." if len(seen) > 12 else "")
+        trained_split = getattr(config, "split_seed", None)
+        hint = (
+            f"evaluate on the model's own split (split seed {trained_split}: leave out "
+            "--split-seed and --tasks)"
+            if trained_split is not None and trained_split != split_seed
+            else "train on data without them (collect --tasks train)"
+        )
+        raise SeenTasksError(
+            f"{len(seen)} of the {len(tasks)} evaluation tasks of {spec.env_id} (split seed "
+            f"{split_seed}) are in {model}'s training data ({shown}): results on them are not "
+            f"in-context learning on unseen tasks. {hint[0].upper()}{hint[1:]}, or pass "
+            "--allow-seen to report them as seen tasks"
+        )
+    return seen
+
+
+def seen_label(seen: list[int] | None, num_tasks: int) -> str:
+    """How an evaluation's task set is named in its plot, card and table: unseen or seen."""
+    if seen is None:
+        return "seen tasks (training tasks not recorded)"
+    if not seen:
+        return "unseen tasks"
+    if len(seen) == num_tasks:
+        return "seen tasks"
+    return f"seen tasks ({len(seen)} of {num_tasks})"

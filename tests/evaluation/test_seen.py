@@ -1,0 +1,156 @@
+"""Split safety: a model records the tasks it trained on, and evaluation never calls them unseen."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from transformers import AutoConfig
+
+from lhf_hf.cli.main import main
+from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
+from lhf_hf.envs import get_spec, task_split
+from lhf_hf.evaluation import evaluate
+from lhf_hf.evaluation.seen import SeenTasksError, seen_label, seen_tasks
+from lhf_hf.modeling import ICRLModel, icrl_config
+from lhf_hf.training import train
+
+TINY = dict(preset="tiny", batch_size=4, context_length=40, max_steps=2, save_steps=1)
+
+
+class _Config:
+    def __init__(self, train_tasks, split_seed):
+        self.train_tasks, self.split_seed = train_tasks, split_seed
+
+
+def test_seen_tasks_by_task_identity():
+    dark, mw = get_spec("darkroom"), get_spec("metaworld-reach")
+    # gridworld task ids name the same goal under every split seed
+    assert seen_tasks(dark, _Config([3, 40, 60], 0), [60, 57, 3], split_seed=1) == [3, 60]
+    assert seen_tasks(dark, _Config([3, 40], 0), [5, 6], split_seed=0) == []
+    # Meta-World's goals are drawn from the split seed: task 10 of seed 1 is another goal
+    assert seen_tasks(mw, _Config([10, 11], 0), [10, 50], split_seed=0) == [10]
+    assert seen_tasks(mw, _Config([10, 11], 0), [10, 50], split_seed=1) == []
+    assert seen_tasks(dark, _Config(None, None), [5], split_seed=0) is None
+    assert seen_label([], 8) == "unseen tasks"
+    assert seen_label([62], 8) == "seen tasks (1 of 8)"
+    assert seen_label([1, 2], 2) == "seen tasks"
+    assert seen_label(None, 8).startswith("seen tasks")
+
+
+def test_collect_defaults_to_the_train_split():
+    train_tasks, test_tasks = task_split("darkroom", 2)
+    cfg = CollectConfig("darkroom", split_seed=2)
+    assert cfg.tasks == sorted(train_tasks) and not set(cfg.tasks) & set(test_tasks)
+    assert len(CollectConfig("darkroom", tasks="all").tasks) == 81
+
+
+@pytest.fixture(scope="module")
+def trained(small_darkroom, tmp_path_factory):
+    """A tiny AD on the small dataset: tasks 3, 40 (train tasks of split 0) and 62 (a test task)."""
+    out = tmp_path_factory.mktemp("seen") / "m"
+    train(TrainConfig(dataset=str(small_darkroom.root), objective="ad", out=str(out), **TINY))
+    return out
+
+
+def test_the_model_and_every_checkpoint_record_the_training_tasks(trained):
+    for folder in [trained, *sorted(trained.glob("checkpoint-*"))]:
+        config = AutoConfig.from_pretrained(folder)
+        assert config.train_tasks == [3, 40, 62] and config.split_seed == 0, folder
+    prov = json.loads((trained / "train_config.json").read_text())
+    assert prov["dataset"]["tasks"] == [3, 40, 62]
+    assert prov["dataset"]["split_coverage"]["test_tasks_trained_on"] == [62]
+
+
+def test_evaluate_refuses_trained_on_tasks_unless_allowed(trained, tmp_path):
+    # the default test tasks of split 0 hold 62, which the model trained on
+    with pytest.raises(SeenTasksError, match=r"1 of the 8 evaluation tasks .*\(62\)"):
+        evaluate(EvalConfig(model=str(trained), out=str(tmp_path / "e"), episodes=1), False)
+    assert not (tmp_path / "e").exists()  # nothing written
+    # also from a checkpoint folder (its config carries the split; no train_config.json there)
+    ckpt = sorted(trained.glob("checkpoint-*"))[-1]
+    with pytest.raises(SeenTasksError, match="62"):
+        evaluate(EvalConfig(model=str(ckpt), out=str(tmp_path / "c"), episodes=1), False)
+    # asked explicitly: evaluated and labelled everywhere
+    res = evaluate(
+        EvalConfig(model=str(trained), out=str(tmp_path / "e"), episodes=1, allow_seen=True), False
+    )
+    assert res["seen_tasks"] == [62] and res["task_label"] == "seen tasks (1 of 8)"
+    assert res["split_seed"] == 0 and res["tasks"] == task_split("darkroom", 0)[1]
+    card = (trained / "README.md").read_text()
+    assert "| seen tasks (1 of 8) |" in card and "test-split-0-seen" in card
+
+
+def test_another_split_seed_cannot_smuggle_training_goals(small_darkroom, tmp_path):
+    """A split-0 model evaluated with --split-seed 1: its test goals include train goals of split 0."""
+    sub = tmp_path / "d"
+    assert main(["collect", "darkroom", "--out", str(sub), "--tasks", "3,60", "--histories", "4",
+                 "--steps", "200", "--collector", "batched", "--no-progress"]) == 0  # fmt: skip
+    model = tmp_path / "m"
+    train(TrainConfig(dataset=str(sub), objective="ad", out=str(model), **TINY))
+    # its own split: 3 and 60 are train tasks of split 0, all 8 test tasks unseen
+    res = evaluate(EvalConfig(model=str(model), out=str(tmp_path / "e0"), episodes=1), False)
+    assert res["seen_tasks"] == [] and res["task_label"] == "unseen tasks"
+    with pytest.raises(SeenTasksError, match=r"\(60\).*own split \(split seed 0"):
+        evaluate(
+            EvalConfig(model=str(model), out=str(tmp_path / "e1"), episodes=1, split_seed=1), False
+        )
+
+
+def test_a_model_without_a_record_is_refused_unless_allowed(tmp_path, capsys):
+    model = ICRLModel(icrl_config("tiny", objective="ad", env_id="darkroom", context_length=40))
+    model.save_pretrained(tmp_path / "m")
+    ev = ["evaluate", "--model", str(tmp_path / "m"), "--episodes", "1", "--out"]
+    assert main([*ev, str(tmp_path / "e")]) == 1
+    err = capsys.readouterr().err
+    assert "does not record the tasks it was trained on" in err and "Traceback" not in err
+    assert main([*ev, str(tmp_path / "e"), "--allow-seen"]) == 0
+    res = json.loads((tmp_path / "e" / "eval_results.json").read_text())
+    assert res["seen_tasks"] is None and res["task_label"].startswith("seen tasks")
+
+
+def test_compare_labels_seen_rows(trained, tmp_path):
+    from lhf_hf.evaluation.compare import backbone_of
+
+    res = evaluate(
+        EvalConfig(model=str(trained), out=str(tmp_path / "e"), episodes=1, allow_seen=True), False
+    )
+    assert backbone_of(res) == "AD [seen tasks]"
+    shutil.rmtree(tmp_path / "e")
+    assert backbone_of({"objective": "ad", "config": {}, "task_label": "unseen tasks"}) == "AD"
+
+
+def test_train_says_which_split_its_data_covers(small_darkroom, tmp_path, capsys):
+    out = Path(tmp_path / "m")
+    train(TrainConfig(dataset=str(small_darkroom.root), objective="ad", out=str(out), **TINY))
+    err = capsys.readouterr().err
+    assert "2 of the 73 train tasks of darkroom split seed 0 and 1 of its 8 test tasks" in err
+
+
+def test_concurrent_evaluations_keep_every_card_entry(trained):
+    """Each evaluation appends to the model's evaluations under a lock: none is lost."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from lhf_hf.evaluation.evaluate import _add_to_model_card
+
+    before = (
+        json.loads((trained / "evaluations.json").read_text())
+        if (trained / "evaluations.json").exists()
+        else []
+    )
+
+    def one(i):
+        _add_to_model_card(trained, {
+            "config": {"out": f"/tmp/concurrent-{i}", "tasks": "test", "episodes": 1, "plan": False,
+                       "seed": i, "model": str(trained)},
+            "env_id": "darkroom", "split_seed": 0, "tasks": [38], "task_label": "unseen tasks",
+            "rollouts": 1, "context": "window", "mean_return": 0.0, "final_return": 0.0,
+            "success_rate": None,
+        })  # fmt: skip
+
+    with ThreadPoolExecutor(8) as pool:
+        list(pool.map(one, range(8)))
+    after = json.loads((trained / "evaluations.json").read_text())
+    assert len(after) == len(before) + 8
