@@ -2,22 +2,12 @@
 
 from __future__ import annotations
 
-import hashlib
 import shutil
-from pathlib import Path
 
 import pytest
 
 from lhf_hf.cli.main import main
-
-
-def _tree_digest(root: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*")):
-        h.update(str(p.relative_to(root)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
+from tests.trees import tree_digest
 
 
 @pytest.fixture()
@@ -32,7 +22,7 @@ TRAIN = ["--objective", "ad", "--preset", "tiny", "--max-steps", "2", "--batch-s
 
 
 def test_train_overwrite_never_deletes_a_dataset_or_someone_elses_folder(data, tmp_path, capsys):
-    before = _tree_digest(data)
+    before = tree_digest(data)
     assert main(["train", "--dataset", str(data), "--out", str(data), "--overwrite", *TRAIN]) == 1
     assert "is the input" in capsys.readouterr().err
     other = tmp_path / "other"
@@ -45,11 +35,11 @@ def test_train_overwrite_never_deletes_a_dataset_or_someone_elses_folder(data, t
     assert main(["train", "--dataset", str(data), "--out", str(mine), "--overwrite", *TRAIN]) == 1
     assert "not an lhf model: refusing to replace it" in capsys.readouterr().err
     assert (mine / "notes.md").read_text() == "mine" and len(list(mine.iterdir())) == 1
-    assert _tree_digest(data) == before
+    assert tree_digest(data) == before
 
 
 def test_filter_and_derive_never_replace_their_source(data, tmp_path, capsys):
-    before = _tree_digest(data)
+    before = tree_digest(data)
     sel = str(tmp_path / "sel")
     assert main(["filter", str(data), "--out", sel, "--materialize", str(data), "--overwrite"]) == 1
     assert "is the input" in capsys.readouterr().err
@@ -57,7 +47,7 @@ def test_filter_and_derive_never_replace_their_source(data, tmp_path, capsys):
     assert "is the input" in capsys.readouterr().err
     assert main(["derive", "half", str(data), "--out", str(tmp_path), "--overwrite"]) == 1
     assert "contains the input" in capsys.readouterr().err
-    assert _tree_digest(data) == before
+    assert tree_digest(data) == before
 
 
 def test_existing_outputs_need_overwrite(data, tmp_path, capsys):
@@ -151,7 +141,7 @@ def test_sigterm_during_overwrite_puts_the_old_model_back(data, tmp_path):
 
     model = tmp_path / "m"
     assert main(["train", "--dataset", str(data), "--out", str(model), *TRAIN]) == 0
-    before = _tree_digest(model)
+    before = tree_digest(model)
     cmd = [sys.executable, "-m", "lhf_hf", "train", "--dataset", str(data), "--out", str(model),
            "--overwrite", "--objective", "ad", "--preset", "tiny", "--max-steps", "100000",
            "--batch-size", "2"]  # fmt: skip
@@ -164,4 +154,4 @@ def test_sigterm_during_overwrite_puts_the_old_model_back(data, tmp_path):
     _, err = p.communicate(timeout=120)
     assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
     assert "terminated" in err and "Traceback" not in err
-    assert _tree_digest(model) == before and not list(tmp_path.glob(".m.replaced-*"))
+    assert tree_digest(model) == before and not list(tmp_path.glob(".m.replaced-*"))

@@ -19,6 +19,7 @@ from lhf_hf.filtering import (
     materialize,
 )
 from lhf_hf.histories import load_histories
+from tests.trees import tree_digest
 
 
 @pytest.fixture(scope="module")
@@ -148,17 +149,6 @@ def test_cli_bad_input_writes_nothing(small_darkroom, tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
-def _digest(root):
-    import hashlib
-
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*")):
-        h.update(str(p.relative_to(root)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
-
-
 @pytest.mark.parametrize("when", ["after the selection's last write", "in materialize's writes"])
 def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
     small_darkroom, tmp_path, monkeypatch, capsys, when
@@ -170,7 +160,7 @@ def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
 
     sel, mat = tmp_path / "sel", tmp_path / "mat"
     run_filter(small_darkroom.root, sel, FilterConfig(), materialize=mat, progress=False)
-    before = _digest(sel), _digest(mat)
+    before = tree_digest(sel), tree_digest(mat)
     if when == "in materialize's writes":
 
         def boom(*args, **kwargs):
@@ -193,7 +183,7 @@ def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
     with pytest.raises(KeyboardInterrupt):
         run_filter(small_darkroom.root, sel, FilterConfig(lam=0.0), materialize=mat,
                    overwrite=True, progress=False)  # fmt: skip
-    assert (_digest(sel), _digest(mat)) == before
+    assert (tree_digest(sel), tree_digest(mat)) == before
     assert not list(tmp_path.glob(".*.replaced-*"))
     monkeypatch.undo()
     run_filter(small_darkroom.root, sel, FilterConfig(lam=0.0), materialize=mat, overwrite=True,
