@@ -1,5 +1,3 @@
-import sys
+from lhf_hf.cli.entry import run
 
-from lhf_hf.cli.main import main
-
-sys.exit(main())
+run()

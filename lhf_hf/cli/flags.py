@@ -193,3 +193,13 @@ def values(args: argparse.Namespace, names: Iterable[str]) -> dict[str, Any]:
     """The fields of ``names`` given on the command line (unset ones are absent: their defaults
     are the dataclass's or function's own)."""
     return {n: getattr(args, n) for n in names if hasattr(args, n)}
+
+
+def quiet_libraries() -> None:
+    """``--no-progress``: also the bars transformers and datasets draw themselves (loading and
+    writing weights, building tables)."""
+    import datasets  # deferred: heavy, and only when asked
+    from transformers.utils import logging as hf_logging  # deferred: as above
+
+    hf_logging.disable_progress_bar()
+    datasets.disable_progress_bars()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import signal
 import sys
 from contextlib import nullcontext
 
@@ -15,6 +16,7 @@ from lhf_hf import __version__
 from lhf_hf.utils.signals import (
     Terminated,
     ignore_interrupts,
+    interrupted_by,
     interrupts_raise_once,
     sigterm_raises,
 )
@@ -52,17 +54,37 @@ def main(argv: list[str] | None = None) -> int:
     if program:
         interrupts_raise_once()
     try:
+        code = _run(args, program)
+        sys.stdout.flush()  # here, where a closed pipe can still be caught (lhf_hf.cli.entry)
+        if program:
+            # Done: an interrupt now must not turn a finished run into a death by signal (the
+            # interpreter's exit puts SIGINT's default action back where a Python handler is).
+            ignore_interrupts()
+        return code
+    except BaseException as exc:
+        sig = interrupted_by() if program else None
+        if sig is None or isinstance(exc, KeyboardInterrupt | Terminated):
+            raise
+        # the interrupt surfaced as another error (a library wrapped it): it is still one
+        word = "interrupted" if sig == signal.SIGINT else "terminated"
+        print(f"lhf {args.command}: {word}{_completed()}", file=sys.stderr)
+        return 128 + sig
+
+
+def _run(args: argparse.Namespace, program: bool) -> int:
+    """The command, with the outcomes every command shares turned into messages and exit codes."""
+    try:
         with nullcontext() if program else sigterm_raises():  # kill / timeout: as Ctrl-C
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         if program:  # also after an interrupt some library code raised itself
             ignore_interrupts()
-        print(f"lhf {args.command}: interrupted", file=sys.stderr)
+        print(f"lhf {args.command}: interrupted{_completed()}", file=sys.stderr)
         return 130
     except Terminated as exc:
         if program:
             ignore_interrupts()
-        print(f"lhf {args.command}: terminated", file=sys.stderr)
+        print(f"lhf {args.command}: terminated{_completed()}", file=sys.stderr)
         return int(exc.code)
     except (
         KeyError,
@@ -74,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         FileExistsError,
         RuntimeError,
     ) as exc:
+        if program and interrupted_by() is not None:
+            raise  # an interrupt a library wrapped: main reports it as the interrupt
         # User errors: one clear line, no traceback.
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
@@ -91,6 +115,15 @@ def main(argv: list[str] | None = None) -> int:
         where = f": {exc.filename}" if exc.filename else ""
         print(f"lhf {args.command}: error: {exc.strerror}{where}", file=sys.stderr)
         return 1
+
+
+def _completed() -> str:
+    """What an interrupted command had already finished (complete, kept): said, not guessed."""
+    from lhf_hf.utils.outputs import COMPLETED  # deferred: heavy (pyarrow, via utils.io)
+
+    if not COMPLETED:
+        return ""
+    return " (after it completed " + ", ".join(f"the {k} {p}" for k, p in COMPLETED) + ")"
 
 
 #: What the machine refuses (a full disk, a name too long, no permission), not a bug of ours: one

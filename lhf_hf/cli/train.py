@@ -6,8 +6,9 @@ import argparse
 import os
 
 from lhf_hf.configs import TrainConfig
+from lhf_hf.configs.commands import OutputOptions
 
-from .flags import add_params, values
+from .flags import add_params, quiet_libraries, values
 
 HELP = "pretrain an ICRL model (AD, DPT or DICP) with transformers.Trainer"
 
@@ -26,7 +27,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     fields += add_params(
         p, TrainConfig, only=("resume", "overwrite"), group=p.add_mutually_exclusive_group()
     )
-    p.set_defaults(func=run, fields=fields)
+    output = add_params(p, OutputOptions, only=("progress",))
+    p.set_defaults(func=run, fields=fields, output=output)
     return p
 
 
@@ -34,7 +36,10 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.training import train  # deferred: heavy (torch, transformers)
 
     cfg = TrainConfig(**values(args, args.fields))
-    out = train(cfg)
+    progress = values(args, args.output).get("progress", True)
+    if not progress:
+        quiet_libraries()
+    out = train(cfg, progress=progress)
     if os.environ.get("RANK", "0") == "0":  # one line under accelerate launch, not one per process
         print(f"model: {out}  (card: {out}/README.md, config: {out}/train_config.json)")
         if cfg.push_to_hub:

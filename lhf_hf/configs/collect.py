@@ -161,7 +161,8 @@ class CollectConfig:
         ops (any device; the only choice on CUDA); ``auto``: whichever of the two one measured update
         found faster on this machine (cached per CPU), ``torch`` where the kernel does not build.
         The two draw their random numbers differently, so the data differ; the
-        resolved choice is stored with the dataset.
+        resolved choice is stored with the dataset, and ``lhf reproduce`` resolves it before
+        hashing a collect stage (the stage's name says which backend made its data).
     """
 
     env_id: str

@@ -16,7 +16,6 @@ from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
 from lhf_hf.utils.io import read_json, write_json_atomic
 from lhf_hf.utils.outputs import file_lock, output_folder
-from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
 
 from .plots import plot_eval_curve
@@ -64,16 +63,24 @@ def plan_label(cfg: EvalConfig) -> str:
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
     """Run ``cfg``; write ``eval_results.json`` and ``eval_curve.png`` to ``cfg.out``; add the result
     to the checkpoint's card.  Returns the results dict."""
-    with output_folder(
-        cfg.out, "evaluation", overwrite=cfg.overwrite, inputs=[cfg.model], legacy=[RESULTS_FILE]
-    ):
-        results, model_dir = _evaluate_into(cfg, progress)
-    # Only a finished evaluation enters the card: an interrupted one (its folder put back or left
-    # unfinished) never shows there.  The update itself runs whole.
-    if not is_hub_snapshot(model_dir):  # never write into the Hub cache; push the card instead
-        with interrupts_ignored():
+    done: list = []  # (results, model folder), once the rollouts are written
+
+    def enter_card() -> None:
+        # within the folder's switch: the card lists an evaluation exactly when it is complete
+        results, model_dir = done[0]
+        if not is_hub_snapshot(model_dir):  # never write into the Hub cache; push the card
             _add_to_model_card(model_dir, results)
-    return results
+
+    with output_folder(
+        cfg.out,
+        "evaluation",
+        overwrite=cfg.overwrite,
+        inputs=[cfg.model],
+        legacy=[RESULTS_FILE],
+        on_switch=enter_card,
+    ):
+        done.append(_evaluate_into(cfg, progress))
+    return done[0][0]
 
 
 def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:

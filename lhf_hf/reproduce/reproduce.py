@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from lhf_hf.collection import collect
+from lhf_hf.collection.batched_collector import resolve_ppo_backend
 from lhf_hf.configs import CollectConfig
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare, mean_curves
@@ -66,6 +67,10 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
         for env in exp.envs:
             tag = f"{env} run {run}"
             collect_cfg = exp.collect_config(env, run)
+            if collect_cfg.collector == "batched":
+                # `auto` decided before the hash: the kernel and torch ops draw their random
+                # numbers differently, so the backend is part of what the stage's name says
+                collect_cfg.ppo_backend = resolve_ppo_backend(collect_cfg)
 
             def do_collect(out: Path, cfg=collect_cfg) -> None:
                 data = out / "data"

@@ -280,7 +280,7 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
 
 
 # ---------------------------------------------------------------------------- train
-def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
+def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bool = True):
     """Everything ``train`` runs, without running it: (trainer, provenance dict)."""
     ds = load_histories(cfg.dataset)
     spec = get_spec(ds.env_id)
@@ -345,7 +345,8 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None):
         report_to="none",
         remove_unused_columns=False,
         dataloader_num_workers=0,
-        dataloader_drop_last=True,  # with the sampler's whole batches, no step is short
+        dataloader_drop_last=True,
+        disable_tqdm=not progress,  # with the sampler's whole batches, no step is short
         ddp_find_unused_parameters=False,
         use_cpu=not torch.cuda.is_available(),
         # Trainer creates the repo; _PushCheckpoints pushes each saved checkpoint's weights as it
@@ -469,8 +470,9 @@ def last_checkpoint(folder: str | Path) -> str | None:
     return None
 
 
-def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
-    """Train, then write the final model, ``train_config.json``, the loss log and plot and the card."""
+def train(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bool = True) -> Path:
+    """Train, then write the final model, ``train_config.json``, the loss log and plot and the card.
+    ``progress``: Trainer's progress bar."""
     out = Path(cfg.out)
     existed = out.is_dir() and any(out.iterdir())  # before the claim creates it
     with ExitStack() as claim:
@@ -495,7 +497,7 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None) -> Path:
                 raise FileNotFoundError(
                     f"--resume: no complete checkpoint-* folder in {out} to resume from: {fix}"
                 )
-        step = _train_into(cfg, model_config, out, resume)
+        step = _train_into(cfg, model_config, out, resume, progress)
     # The final push, once the folder is whole and has its manifest: it is checked and pushed like
     # `lhf push` (manifest, card, no optimizer states), and the Hub copy verifies when loaded.
     if cfg.push_to_hub and int(os.environ.get("RANK", "0")) == 0:
@@ -538,8 +540,10 @@ def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resum
     write_model_card(out, trainer.model.config, provenance)
 
 
-def _train_into(cfg: TrainConfig, model_config, out: Path, resume: str | None) -> int:
-    trainer, provenance = build_trainer(cfg, model_config)
+def _train_into(
+    cfg: TrainConfig, model_config, out: Path, resume: str | None, progress: bool = True
+) -> int:
+    trainer, provenance = build_trainer(cfg, model_config, progress)
     if resume is not None:
         check_resume(resume, trainer.lhf_identity)
         check_weights(Path(resume), trainer.model.config)  # a damaged checkpoint: one line

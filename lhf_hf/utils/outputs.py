@@ -34,7 +34,7 @@ import json
 import os
 import shutil
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -44,6 +44,9 @@ from .io import read_json, sha256_file, write_json_atomic
 from .signals import interrupts_ignored
 
 MARKER = ".lhf_output.json"
+#: (kind, folder) of every artifact this process completed (switched in), in order: an interrupt
+#: that lands after a switch is reported with what it did not undo (``lhf_hf.cli.main``).
+COMPLETED: list[tuple[str, Path]] = []
 
 
 class OutputError(FileExistsError):
@@ -326,6 +329,7 @@ def output_folder(
     own_nested: Iterable[str] = (),
     linked: list | None = None,
     defer_to: list | None = None,
+    on_switch: Callable[[], None] | None = None,
 ) -> Iterator[Path]:
     """Claim ``out`` for writing an artifact of ``kind`` (see the module docstring).
 
@@ -344,6 +348,9 @@ def output_folder(
         ``defer_to=L``, keeps its set-aside old copy until the first, claimed with ``linked=L``,
         has switched; if the first fails or is interrupted after the second switched, the
         second's old copy is put back too.  (A second with no old copy keeps its new one.)
+    on_switch: run within the switch (after the manifest, before the old copy goes, interrupts
+        held off), for a record elsewhere that must change with the artifact (an evaluation's
+        entry in its model's card); if it fails, the old artifact is put back.
     """
     checks = dict(
         overwrite=overwrite, resume=resume, inputs=inputs, legacy=legacy, own_nested=own_nested
@@ -368,6 +375,7 @@ def output_folder(
             raise OutputError(f"cannot create the output folder {out}: {exc.strerror}") from None
         marker = real / MARKER
         before = marker.read_text() if marker.exists() else None
+        switched = False
         # in progress: no manifest until the command ends (a resumed folder's old one is dropped)
         write_json_atomic({"kind": kind, "lhf_hf": __version__}, marker)
         try:
@@ -377,6 +385,8 @@ def output_folder(
             # it (in this very line) still puts the old one back below.
             with interrupts_ignored():
                 record_manifest(real, kind, mutable)
+                if on_switch is not None:
+                    on_switch()
                 if defer_to is not None:  # the enclosing artifact deletes it when it switches
                     defer_to.append((real, replaced))
                 elif replaced is not None:
@@ -384,7 +394,11 @@ def output_folder(
                 for _, aside in linked or ():
                     if aside is not None:
                         shutil.rmtree(aside, ignore_errors=True)
+                COMPLETED.append((kind, real))
+            switched = True
         except BaseException as exc:
+            if switched:  # an interrupt just after the switch: the new artifact is whole
+                raise
             if linked:
                 _put_back_linked(linked)
             if replaced is not None and (replaced / MARKER).is_file():  # put it back: nothing lost

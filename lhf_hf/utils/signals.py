@@ -60,7 +60,19 @@ def interrupts_ignored() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
+#: The signal that interrupted this program (``interrupts_raise_once``), once one has.
+_received: list[int] = []
+
+
+def interrupted_by() -> int | None:
+    """The signal number that interrupted this program, or None.  A library may turn the
+    KeyboardInterrupt into another error (transformers' lazy imports raise "Could not import
+    module"); the program still ended because of the interrupt, and says so."""
+    return _received[0] if _received else None
+
+
 def _raise_once(signum, frame) -> None:
+    _received.append(signum)
     ignore_interrupts()
     if signum == signal.SIGINT:
         raise KeyboardInterrupt

@@ -24,9 +24,10 @@ def bench():
 
 
 @pytest.fixture()
-def data(small_darkroom_batched, tmp_path):
+def data(learned_darkroom, tmp_path):
+    """Goals 3 and 40: train goals of split 0, so its test goals are unseen."""
     root = tmp_path / "data"
-    shutil.copytree(small_darkroom_batched.root, root)
+    shutil.copytree(learned_darkroom.root, root)
     return root
 
 
@@ -108,3 +109,13 @@ def test_a_wall_clock_run_records_a_command_that_resumes(bench, monkeypatch, dat
     # without --resume the record is never overwritten
     with pytest.raises(SystemExit, match="pass --resume"):
         _run(bench, monkeypatch, *flags)
+
+
+def test_data_holding_test_goals_is_refused(bench, monkeypatch, small_darkroom_batched, tmp_path):
+    """The small dataset holds goal 62, a test goal of split 0: its curve would measure a
+    trained-on goal as unseen, so the benchmark stops, as `lhf evaluate` does."""
+    from lhf_hf.evaluation.seen import SeenTasksError
+
+    with pytest.raises(SeenTasksError, match=r"\(62\)"):
+        _run(bench, monkeypatch, "--dataset", small_darkroom_batched.root, "--steps", "2",
+             "--work", tmp_path / "work", "--out", tmp_path / "out.json", *TINY)  # fmt: skip

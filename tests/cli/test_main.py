@@ -72,3 +72,40 @@ def test_what_the_machine_refuses_is_one_line(tmp_path, capsys):
     (model / "config.json").write_text("{not json")
     assert main(["evaluate", "--model", str(model), "--out", str(tmp_path / "e")]) == 1
     assert f"{model / 'config.json'} is not a readable model config" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [(signal.SIGINT, 130, "interrupted"),
+                                                       (signal.SIGTERM, 143, "terminated")])  # fmt: skip
+def test_an_interrupt_a_library_wrapped_is_still_an_interrupt(
+    monkeypatch, handlers, capsys, signum, code, word
+):
+    """transformers' lazy import turns a KeyboardInterrupt into "Could not import module ...":
+    the program was interrupted, and says so (not "error: Could not import ...", exit 1)."""
+    from lhf_hf.utils import signals
+
+    monkeypatch.setattr(signals, "_received", [])
+
+    def run(args):
+        try:
+            os.kill(os.getpid(), signum)
+            time.sleep(5)
+        except BaseException as exc:
+            raise RuntimeError("Could not import module 'LlamaModel'") from exc
+
+    monkeypatch.setattr(envs, "run", run)
+    monkeypatch.setattr(sys, "argv", ["lhf", "envs"])
+    assert main() == code
+    err = capsys.readouterr().err
+    assert f"lhf envs: {word}" in err and "Could not import" not in err
+
+
+def test_a_closed_pipe_ends_quietly(tmp_path):
+    """`lhf envs --json | head -1`: no BrokenPipeError traceback, the status of a SIGPIPE."""
+    import subprocess
+
+    read, write = os.pipe()
+    os.close(read)  # the reader went away before the program writes anything
+    p = subprocess.run([sys.executable, "-m", "lhf_hf", "envs", "--json"], stdout=write,
+                       stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
+    os.close(write)
+    assert p.returncode == 128 + signal.SIGPIPE and "Traceback" not in p.stderr, p.stderr

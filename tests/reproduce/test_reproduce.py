@@ -579,3 +579,21 @@ def test_a_train_stage_resumes_a_whole_checkpoint_or_starts_clean(tmp_path, monk
     assert seen[1] == (True, True, False) and stage.done(work)
     resumed = json.loads((model / "train_config.json").read_text())["resumed_from"]
     assert resumed.endswith("checkpoint-2")
+
+
+def test_the_collect_stage_is_named_by_the_resolved_ppo_backend(tmp_path, monkeypatch):
+    """With ppo_backend `auto`, which backend runs depends on a timing on this machine, and the
+    kernel and torch ops draw different random numbers: the stage hash names the resolved backend,
+    so one stage name never stands for two datasets."""
+    import importlib
+
+    rep = importlib.import_module("lhf_hf.reproduce.reproduce")  # the module, not the function
+    exp = load_experiment(_spec(tmp_path, TINY), "quick")
+    hashes = {}
+    for backend in ("kernel", "torch"):
+        monkeypatch.setattr(rep, "resolve_ppo_backend", lambda cfg, b=backend: b)
+        stages, _ = plan_stages(exp, tmp_path)
+        collect = [s for s in stages if s.kind == "collect"]
+        assert all(s.config.get("ppo_backend", "torch") == backend for s in collect)
+        hashes[backend] = {s.hash for s in collect}
+    assert not hashes["kernel"] & hashes["torch"]
