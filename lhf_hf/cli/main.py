@@ -100,6 +100,9 @@ def _run(args: argparse.Namespace, program: bool) -> int:
             raise  # an interrupt a library wrapped: main reports it as the interrupt
         # User errors: one clear line, no traceback.
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        if isinstance(exc, KeyError) and isinstance(msg, str) and " " not in msg:
+            # a bare key: a file it read lacks a field (our own KeyErrors are sentences)
+            msg = f"a file it read has no field {msg!r} (damaged, or not written by lhf_hf)"
         print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
         return 1
     except MemoryError:

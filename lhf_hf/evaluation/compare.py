@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
-from lhf_hf.utils.outputs import output_folder
+from lhf_hf.utils.outputs import changed_since_written, output_folder
 
 from .evaluate import RESULTS_FILE
 from .plots import plot_comparison
@@ -30,6 +30,11 @@ def load_results(path: str) -> dict:
     f = p / RESULTS_FILE if p.is_dir() else p
     if not f.exists():
         raise FileNotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
+    if changed_since_written(f.parent, [f.name]):  # a hand-edited result is not a result
+        raise ValueError(
+            f"compare: {f} changed since `lhf evaluate` wrote it (its folder's manifest says "
+            "otherwise): not compared; `lhf verify` shows what changed"
+        )
     try:
         r = read_json(f)
     except ValueError as exc:

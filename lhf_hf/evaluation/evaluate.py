@@ -15,7 +15,7 @@ from lhf_hf.training.card import MODEL_EVALS_FILE, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
 from lhf_hf.utils.io import read_json, write_json_atomic
-from lhf_hf.utils.outputs import file_lock, output_folder
+from lhf_hf.utils.outputs import changed_since_written, file_lock, output_folder
 from lhf_hf.utils.versions import library_versions
 
 from .plots import plot_eval_curve
@@ -85,6 +85,19 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict:
 
 def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
     model_dir = resolve(cfg.model, "model", "model checkpoint")
+    changed = changed_since_written(
+        model_dir, ["config.json", "model.safetensors", TRAIN_CONFIG_FILE]
+    )
+    if changed:  # its record of the training tasks (config.json) decides what is unseen
+        raise ValueError(
+            f"{cfg.model}: {', '.join(changed)} changed since `lhf train` wrote it (its manifest "
+            "says otherwise): not evaluated; `lhf verify` shows what changed"
+        )
+    evals_path = model_dir / MODEL_EVALS_FILE
+    if evals_path.is_file() and not is_hub_snapshot(model_dir):  # before the rollouts, not after
+        evals = read_json(evals_path)
+        if not isinstance(evals, list):
+            raise ValueError(f"{evals_path} is not a list of evaluations: the file is damaged")
     model = load_model(str(model_dir))
     mc = model.config
     env_id = cfg.env_id or mc.env_id

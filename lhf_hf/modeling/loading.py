@@ -38,7 +38,16 @@ def load_model(path: str) -> ICRLModel:
             )
         raise FileNotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
     check_weights(p, config)
-    return AutoModel.from_pretrained(p, use_safetensors=True).eval()
+    model = AutoModel.from_pretrained(p, use_safetensors=True).eval()
+    bad = [
+        n for n, t in model.state_dict().items() if t.is_floating_point() and not t.isfinite().all()
+    ]
+    if bad:  # a diverged training: its actions would be NaN draws, not a policy
+        raise ValueError(
+            f"{path}: {len(bad)} weight tensors hold NaN or infinite values (e.g. {bad[0]}): "
+            "not a usable model"
+        )
+    return model
 
 
 def check_weights(folder: Path, config) -> None:

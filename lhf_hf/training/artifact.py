@@ -47,7 +47,17 @@ class CheckpointArtifact(HubArtifact):
         problems = super().verify(path)
         if problems:
             return problems
-        data = read_json(path / TRAIN_CONFIG_FILE).get("dataset") or {}
+        evals = path / MODEL_EVALS_FILE  # mutable (evaluations add to it), but must still parse
+        if evals.is_file():
+            try:
+                if not isinstance(read_json(evals), list):
+                    return [f"{evals} is not a list of evaluations"]
+            except ValueError as exc:
+                return [str(exc)]
+        try:
+            data = read_json(path / TRAIN_CONFIG_FILE).get("dataset") or {}
+        except (ValueError, AttributeError) as exc:
+            return [f"{path / TRAIN_CONFIG_FILE}: {exc}"]
         source = Path(data.get("path", ""))
         if source.is_dir() and (source / C.INFO_PATH).exists():
             try:

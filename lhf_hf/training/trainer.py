@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
+import shutil
 import sys
 import time
 from contextlib import ExitStack
@@ -124,6 +126,44 @@ class _PushCheckpoints(TrainerCallback):
             token=args.hub_token,
             revision=args.hub_revision,
         )
+
+
+#: What Trainer and ``WindowTrainer._save`` write into a checkpoint: the only files rotation deletes.
+CHECKPOINT_FILES = re.compile(
+    r"^(config\.json|model.*\.safetensors|optimizer\.pt|scheduler\.pt|rng_state(_\d+)?\.pth|"
+    r"trainer_state\.json|training_args\.(json|bin)|lhf_train_identity\.json|"
+    r"generation_config\.json|scaler\.pt)$"
+)
+KEEP_CHECKPOINTS = 2
+
+
+class _RotateOwnCheckpoints(TrainerCallback):
+    """Keeps the newest ``KEEP_CHECKPOINTS`` checkpoints, as Trainer's ``save_total_limit`` would,
+    but never deletes one holding anything Trainer did not write (a user's notes, an evaluation
+    ``--out CKPT/eval``): that one stays, and is named once."""
+
+    def __init__(self) -> None:
+        self.kept: set[str] = set()
+
+    def on_save(self, args, state, control, **kwargs):
+        if not state.is_world_process_zero:
+            return
+        numbered = sorted(
+            (int(p.name.split("-", 1)[1]), p)
+            for p in Path(args.output_dir).glob(f"{PREFIX_CHECKPOINT_DIR}-*")
+            if p.is_dir() and p.name.split("-", 1)[1].isdigit()
+        )
+        for _, path in numbered[:-KEEP_CHECKPOINTS]:
+            foreign = [e.name for e in path.iterdir() if not CHECKPOINT_FILES.match(e.name)]
+            if not foreign:
+                shutil.rmtree(path, ignore_errors=True)
+            elif str(path) not in self.kept:
+                self.kept.add(str(path))
+                print(
+                    f"lhf: note: {path} is kept (it holds {', '.join(sorted(foreign)[:4])}, "
+                    "which training did not write)",
+                    file=sys.stderr,
+                )
 
 
 class _Throughput(TrainerCallback):
@@ -340,7 +380,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
         max_grad_norm=cfg.max_grad_norm,
         logging_steps=cfg.logging_steps,
         save_steps=cfg.save_steps,
-        save_total_limit=2,
+        save_total_limit=None,  # _RotateOwnCheckpoints keeps the newest 2, and what is not ours
         seed=cfg.seed,
         report_to="none",
         remove_unused_columns=False,
@@ -363,7 +403,10 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
         args=args,
         train_dataset=windows,
         data_collator=collator,
-        callbacks=[_Throughput(cfg.batch_size * length * config.tokens_per_transition)]
+        callbacks=[
+            _Throughput(cfg.batch_size * length * config.tokens_per_transition),
+            _RotateOwnCheckpoints(),
+        ]
         + ([_PushCheckpoints()] if cfg.push_to_hub else []),
     )
     provenance = {
@@ -435,6 +478,25 @@ def check_resume(checkpoint: str, identity: dict) -> None:
         raise ValueError(
             f"--resume: {checkpoint} was trained with a different setup ({'; '.join(diff)}); "
             "resume with the same settings, or --overwrite to start afresh"
+        )
+
+
+def check_resume_config(checkpoint: str, config: ICRLConfig) -> None:
+    """Refuse a checkpoint whose ``config.json`` disagrees with the model this run builds (an
+    edited or copied config: its weights would be loaded into another architecture's reading)."""
+    try:
+        saved = read_json(Path(checkpoint) / "config.json")
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"--resume: {checkpoint}/config.json is unreadable ({exc})") from None
+    diff = [
+        f"{k}: {saved.get(k, _BEFORE_FIELD.get(k))!r} (checkpoint) vs {getattr(config, k)!r}"
+        for k in _MODEL_FIELDS
+        if saved.get(k, _BEFORE_FIELD.get(k)) != getattr(config, k)
+    ]
+    if diff:
+        raise ValueError(
+            f"--resume: {checkpoint}/config.json does not describe this run's model "
+            f"({'; '.join(diff[:4])}); resume with the same settings, or --overwrite"
         )
 
 
@@ -518,6 +580,13 @@ MODEL_FILES = (TRAIN_CONFIG_FILE, "config.json", "checkpoint-*")
 
 def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resume, wall) -> None:
     """Rank 0: the final weights, ``train_config.json``, the loss log and plot, and the card."""
+    bad = [n for n, p in trainer.model.named_parameters() if not torch.isfinite(p).all()]
+    if bad:  # e.g. a learning rate that made it diverge: not a model anyone should evaluate
+        raise ValueError(
+            f"training diverged: {len(bad)} weight tensors hold NaN or infinite values (e.g. "
+            f"{bad[0]}) at step {trainer.state.global_step} (lr {cfg.lr:g}): no model written; "
+            "train again with a smaller --lr"
+        )
     trainer.save_model(str(out), _internal_call=True)  # not pushed: the folder is not whole yet
     history = [r for r in trainer.state.log_history if "loss" in r]
     provenance.update(
@@ -546,8 +615,16 @@ def _train_into(
     trainer, provenance = build_trainer(cfg, model_config, progress)
     if resume is not None:
         check_resume(resume, trainer.lhf_identity)
+        check_resume_config(resume, trainer.model.config)
         check_weights(Path(resume), trainer.model.config)  # a damaged checkpoint: one line
         step = read_json(Path(resume) / TRAINER_STATE_FILE).get("global_step")
+        if isinstance(step, int) and step >= cfg.max_steps and (out / "config.json").is_file():
+            # Trainer would take one more step and rewrite the finished model
+            if trainer.is_world_process_zero():
+                print(f"lhf: {out} is finished (step {step} of {cfg.max_steps}): nothing to "
+                      "resume", file=sys.stderr)  # fmt: skip
+            end_ranks()
+            return step
         before = read_json(Path(resume) / IDENTITY_FILE).get("world_sizes") or [[0, None]]
         world = provenance["world_size"]
         sizes = before if before[-1][1] == world else [*before, [step, world]]

@@ -183,6 +183,28 @@ def check_manifest(path: str | Path, prefix: str | None = None) -> tuple[str | N
     return marker.get("kind"), problems
 
 
+def changed_since_written(folder: str | Path, names: Iterable[str]) -> list[str]:
+    """Which of the files ``names`` in ``folder`` differ from the manifest of the finished
+    artifact that holds them (``folder`` itself or the folder above it, e.g. a ``checkpoint-N``
+    of a model): what a reader must not trust.  [] where no finished artifact records them."""
+    folder = Path(folder).resolve()
+    for root in (folder, folder.parent):
+        try:
+            files = read_json(root / MARKER).get("files")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if files is None:
+            return []  # unfinished (e.g. a training still running): nothing recorded yet
+        changed = []
+        for name in names:
+            rel = str((folder / name).relative_to(root))
+            f = root / rel
+            if rel in files and (not f.is_file() or sha256_file(f) != files[rel]):
+                changed.append(rel)
+        return changed
+    return []
+
+
 @contextmanager
 def _lock(out: Path) -> Iterator[None]:
     lock_path = out.parent / f".{out.name}.lock"
@@ -235,9 +257,9 @@ def _only_in_progress_marker(path: Path) -> bool:
         return False
 
 
-def _aside(real: Path) -> Path:
-    """A free ``.NAME.replaced-PID`` name (PIDs repeat after a restart: ``-2``, ``-3`` ...)."""
-    base = real.parent / f".{real.name}.replaced-{os.getpid()}"
+def _aside(real: Path, tag: str = "replaced") -> Path:
+    """A free ``.NAME.TAG-PID`` name (PIDs repeat after a restart: ``-2``, ``-3`` ...)."""
+    base = real.parent / f".{real.name}.{tag}-{os.getpid()}"
     aside, n = base, 1
     while aside.exists():
         n += 1
@@ -296,9 +318,10 @@ def preflight(
             )
         if not overwrite and not resume:
             hint = "--resume to continue it or " if resumable else ""
+            state = "an unfinished" if _is_unfinished(real) else "an"
             raise OutputError(
-                f"{given} already holds an lhf {kind}: pass {hint}--overwrite to replace it, "
-                "or choose another output"
+                f"{given} already holds {state} lhf {kind}: pass {hint}--overwrite to replace "
+                "it, or choose another output"
             )
     return real
 
@@ -362,7 +385,10 @@ def output_folder(
         replaced = None
         # a folder holding only an in-progress marker (a run killed before it wrote) is reused,
         # not set aside: nothing in it to keep, and repeated kills would pile up empty asides
+        unfinished = False
         if overwrite and real.is_dir() and _content(real) and not _only_in_progress_marker(real):
+            # an unfinished artifact has no manifest: what in it is the command's is unknown
+            unfinished = _is_unfinished(real)
             replaced = _aside(real)
             os.replace(real, replaced)  # atomic: the old artifact is whole until success
         created = not real.exists()
@@ -387,7 +413,9 @@ def output_folder(
                 record_manifest(real, kind, mutable)
                 if on_switch is not None:
                     on_switch()
-                if defer_to is not None:  # the enclosing artifact deletes it when it switches
+                if replaced is not None and unfinished:
+                    _keep_unfinished(replaced, real, kind)
+                elif defer_to is not None:  # the enclosing artifact deletes it when it switches
                     defer_to.append((real, replaced))
                 elif replaced is not None:
                     shutil.rmtree(replaced, ignore_errors=True)
@@ -426,6 +454,26 @@ def output_folder(
             # in-progress marker stays, so that --resume continues it or --overwrite replaces it
             # (without a marker both would refuse it as someone's files)
             raise
+
+
+def _is_unfinished(path: Path) -> bool:
+    try:
+        return "files" not in read_json(path / MARKER)
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def _keep_unfinished(aside: Path, real: Path, kind: str) -> None:
+    """The unfinished artifact an overwrite replaced is never deleted: without a manifest, files
+    someone added to it cannot be told from the command's.  It is kept beside, and named."""
+    keep = _aside(real, "unfinished")
+    os.replace(aside, keep)
+    print(
+        f"lhf: note: the unfinished {kind} {real} held is kept at {keep} (an unfinished folder "
+        "has no manifest, so files added to it cannot be told apart): delete it once you have "
+        "checked it",
+        file=sys.stderr,
+    )
 
 
 def _put_back_linked(linked: list) -> None:

@@ -109,3 +109,19 @@ def test_a_closed_pipe_ends_quietly(tmp_path):
                        stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
     os.close(write)
     assert p.returncode == 128 + signal.SIGPIPE and "Traceback" not in p.stderr, p.stderr
+
+
+def test_a_file_missing_a_field_is_named_as_such(small_darkroom, tmp_path, capsys):
+    import json
+
+    sel = tmp_path / "sel"
+    assert main(["filter", str(small_darkroom.root), "--out", str(sel), "--no-progress"]) == 0
+    conf = sel / "filter_config.json"
+    conf.write_text(
+        json.dumps({k: v for k, v in json.loads(conf.read_text()).items() if k != "source"})
+    )
+    assert main(["train", "--dataset", str(small_darkroom.root), "--selection", str(sel),
+                 "--objective", "ad", "--preset", "tiny", "--max-steps", "1", "--batch-size", "4",
+                 "--out", str(tmp_path / "m")]) == 1  # fmt: skip
+    err = capsys.readouterr().err
+    assert "has no field 'source'" in err and "Traceback" not in err

@@ -154,3 +154,25 @@ def test_concurrent_evaluations_keep_every_card_entry(trained):
         list(pool.map(one, range(8)))
     after = json.loads((trained / "evaluations.json").read_text())
     assert len(after) == len(before) + 8
+
+
+def test_a_record_edited_after_training_is_not_trusted(trained, tmp_path):
+    """Emptying `train_tasks` in config.json would make every task "unseen": the model folder's
+    manifest says config.json changed, so evaluate refuses it; compare refuses an edited result."""
+    from lhf_hf.evaluation.compare import compare
+
+    model = tmp_path / "m"
+    shutil.copytree(trained, model)
+    ev = evaluate(
+        EvalConfig(model=str(model), out=str(tmp_path / "e"), episodes=1, tasks="38"), False
+    )
+    assert ev["task_label"] == "unseen tasks"
+    results = tmp_path / "e" / "eval_results.json"
+    results.write_text(results.read_text().replace('"mean_return": ', '"mean_return": 1', 1))
+    with pytest.raises(ValueError, match="changed since `lhf evaluate` wrote it"):
+        compare([str(tmp_path / "e")], [str(tmp_path / "e")])
+    conf = model / "config.json"
+    conf.write_text(json.dumps({**json.loads(conf.read_text()), "train_tasks": []}))
+    with pytest.raises(ValueError, match=r"config.json changed since `lhf train` wrote it"):
+        evaluate(EvalConfig(model=str(model), out=str(tmp_path / "e2"), tasks="train",
+                            episodes=1), False)  # fmt: skip

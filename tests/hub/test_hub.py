@@ -400,3 +400,10 @@ def test_a_changed_hub_copy_is_refused_at_load_and_by_verify(
     _fails(hub_client(olah, CLI, "filter", repo, "--out", "s"),
            "not those `lhf push` uploaded", "meta/stats.json: changed")  # fmt: skip
     _fails(hub_client(olah, CLI, "verify", repo), "meta/stats.json: changed")
+
+
+def test_an_unreachable_hub_is_one_line(small_darkroom_batched, hub_client):
+    proc = hub_client("http://127.0.0.1:9", CLI, "push", str(small_darkroom_batched.root),
+                      "--repo-id", "lhf-test/unreachable")  # fmt: skip
+    err = _fails(proc, "failed at 'create the repo'", "nothing was committed")
+    assert "Traceback" not in err

@@ -22,7 +22,7 @@ from lhf_hf.reproduce.portable import INDEX_FILE, ExportError, import_stages
 from lhf_hf.reproduce.reproduce import _import, plan_stages
 from lhf_hf.reproduce.stages import DONE_FILE, RECORD_FILE, Stage, StageRunner, needed_stages
 from lhf_hf.utils.io import sha256_file
-from lhf_hf.utils.outputs import OutputError
+from lhf_hf.utils.outputs import OutputError, record_manifest
 from lhf_hf.verify import verify
 from tests.reproduce.test_reproduce import TINY, _spec
 
@@ -119,6 +119,7 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
         found = json.loads(path.read_text())
         found["model"]["dataset"]["fingerprint"] = "f" * 64
         path.write_text(json.dumps(found))
+        record_manifest(path.parent, "evaluation")  # as if evaluate had written it so
     report = reproduce(spec, "quick", 2, tmp_path / "out_c", work_b, echo=lambda s: None)
     other = json.loads((tmp_path / "out_c" / "results.json").read_text())["other_data"]
     assert sorted(o["stage"] for o in other) == sorted(ev.label for ev in run0_evals)
@@ -132,6 +133,7 @@ def test_a_table_finished_on_a_second_machine_from_the_first_ones_evaluations(tm
     found = json.loads(path.read_text())
     found["model"]["dataset"]["fingerprint"] = None
     path.write_text(json.dumps(found))
+    record_manifest(path.parent, "evaluation")
     reproduce(spec, "quick", 2, tmp_path / "out_c", work_b, echo=lambda s: None)
     other = json.loads((tmp_path / "out_c" / "results.json").read_text())["other_data"]
     assert [o["stage"] for o in other] == [run0_evals[1].label]

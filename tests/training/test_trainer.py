@@ -435,9 +435,64 @@ def test_a_resumed_run_records_the_world_sizes_it_ran_with(small_darkroom, tmp_p
     out = train(TrainConfig(**cfg))
     prov = json.loads((out / "train_config.json").read_text())
     assert prov["world_size"] == 1 and prov["world_sizes"] == [[0, 1]]
-    # as if steps 0-4 had run under a 2-process launcher: the resumed stretch is recorded beside
-    ident = out / "checkpoint-4" / "lhf_train_identity.json"
+    # as if steps 0-2 had run under a 2-process launcher before an interruption: the resumed
+    # stretch is recorded beside
+    shutil.rmtree(out / "checkpoint-4")
+    (out / "config.json").unlink()  # not finished: resumed from checkpoint-2
+    ident = out / "checkpoint-2" / "lhf_train_identity.json"
     ident.write_text(json.dumps({**json.loads(ident.read_text()), "world_sizes": [[0, 2]]}))
     train(TrainConfig(**cfg, resume=True))
     prov = json.loads((out / "train_config.json").read_text())
-    assert prov["world_sizes"] == [[0, 2], [4, 1]] and prov["world_size"] == 1
+    assert prov["world_sizes"] == [[0, 2], [2, 1]] and prov["world_size"] == 1
+
+
+def test_rotation_keeps_checkpoints_holding_what_training_did_not_write(tmp_path, capsys):
+    """The newest two checkpoints stay, older ones go, except one holding a user's file or a
+    nested evaluation (Trainer's own rotation deletes whatever a checkpoint folder holds)."""
+    from types import SimpleNamespace
+
+    from lhf_hf.training.trainer import _RotateOwnCheckpoints
+
+    for step in (1, 2, 3, 4):
+        (tmp_path / f"checkpoint-{step}").mkdir()
+        for name in ("config.json", "model.safetensors", "optimizer.pt", "trainer_state.json"):
+            (tmp_path / f"checkpoint-{step}" / name).write_text("x")
+    (tmp_path / "checkpoint-1" / "notes.txt").write_text("mine")
+    (tmp_path / "checkpoint-2" / "rng_state.pth").write_text("x")
+    _RotateOwnCheckpoints().on_save(
+        SimpleNamespace(output_dir=str(tmp_path)), SimpleNamespace(is_world_process_zero=True), None
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "checkpoint-1",
+        "checkpoint-3",
+        "checkpoint-4",
+    ]
+    assert (tmp_path / "checkpoint-1" / "notes.txt").read_text() == "mine"
+    assert "checkpoint-1 is kept (it holds notes.txt" in capsys.readouterr().err
+
+
+def test_resume_refuses_an_edited_checkpoint_config_and_does_nothing_on_a_finished_run(
+    small_darkroom, tmp_path, capsys
+):
+    cfg = dict(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+               preset="tiny", context_length=40, batch_size=4, save_steps=2, max_steps=2)  # fmt: skip
+    out = train(TrainConfig(**cfg))
+    weights = (out / "model.safetensors").read_bytes()
+    train(TrainConfig(**cfg, resume=True))  # finished: nothing to resume, nothing rewritten
+    assert "is finished (step 2 of 2): nothing to resume" in capsys.readouterr().err
+    assert (out / "model.safetensors").read_bytes() == weights
+    assert json.loads((out / "train_config.json").read_text())["global_step"] == 2
+    conf = out / "checkpoint-2" / "config.json"
+    conf.write_text(json.dumps({**json.loads(conf.read_text()), "objective": "dicp"}))
+    with pytest.raises(
+        ValueError, match=r"config.json does not describe this run's model \(objective: 'dicp'"
+    ):
+        train(TrainConfig(**cfg, resume=True))
+
+
+def test_a_diverged_training_writes_no_model(small_darkroom, tmp_path):
+    cfg = TrainConfig(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+                      preset="tiny", context_length=40, batch_size=4, max_steps=2, lr=1e308)  # fmt: skip
+    with pytest.raises(ValueError, match="training diverged: .* NaN or infinite"):
+        train(cfg)
+    assert not (tmp_path / "m" / "model.safetensors").exists()

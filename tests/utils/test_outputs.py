@@ -395,3 +395,19 @@ def test_an_output_inside_an_input_dataset_is_refused(tmp_path):
         (m / "w").write_text("1")
     with output_folder(m / "eval", "evaluation", inputs=[m]):
         pass
+
+
+def test_overwriting_an_unfinished_artifact_keeps_it_beside(tmp_path, capsys):
+    """An unfinished folder has no manifest: files a user added to it cannot be told from the
+    command's, so an overwrite keeps the old folder beside the new one and names it."""
+    out = tmp_path / "d"
+    with pytest.raises(RuntimeError):
+        with output_folder(out, "dataset") as d:
+            (d / "part.parquet").write_text("half")
+            raise RuntimeError("killed")
+    (out / "mine.txt").write_text("mine")
+    with output_folder(out, "dataset", overwrite=True) as d:
+        (d / "data.parquet").write_text("new")
+    (kept,) = tmp_path.glob(".d.unfinished-*")
+    assert (kept / "mine.txt").read_text() == "mine" and _files(out) == [MARKER, "data.parquet"]
+    assert f"is kept at {kept}" in capsys.readouterr().err
