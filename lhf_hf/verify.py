@@ -76,4 +76,4 @@ def _snapshot(spec: str) -> Path:
             if "not loaded" in str(exc):  # found, but not what was pushed: that is the answer
                 raise
             errors.append(str(exc))
-    raise HubError(f"{spec}: neither a dataset nor a model repo ({errors[-1]})")
+    raise HubError(f"{spec}: not readable as a dataset repo nor as a model repo; {errors[-1]}")

@@ -90,6 +90,8 @@ class EvalConfig:
             raise ValueError(
                 "EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True (--plan)"
             )
+        if self.seed < 0:  # numpy's seed sequences take none (its own message names no flag)
+            raise ValueError(f"EvalConfig.seed must be >= 0, got {self.seed!r}")
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in ("test", "train"):

@@ -65,6 +65,8 @@ class FilterConfig:
                 f"FilterConfig.lam must be between 0 and {MAX_LAM:g}, got {self.lam!r} (beyond "
                 "~1e3 Stability alone decides U; the paper's sweep tops at 1000)"
             )
+        if self.seed < 0:  # numpy's seed sequences take none (its own message names no flag)
+            raise ValueError(f"FilterConfig.seed must be >= 0, got {self.seed!r}")
         if not math.isfinite(self.alpha) or self.alpha <= 0:
             raise ValueError(f"FilterConfig.alpha must be > 0, got {self.alpha!r}")
         if not 0 < self.fraction <= 1:

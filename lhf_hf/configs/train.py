@@ -116,6 +116,8 @@ class TrainConfig:
                 raise bad(name, "must be >= 1")
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise bad("lr", "must be > 0")
+        if self.seed < 0:
+            raise bad("seed", "must be >= 0")
         if self.warmup_steps < 0 or self.warmup_steps >= self.max_steps:
             raise bad("warmup_steps", f"must be in [0, max_steps={self.max_steps})")
         if not self.weight_decay >= 0:

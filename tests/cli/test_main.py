@@ -125,3 +125,10 @@ def test_a_file_missing_a_field_is_named_as_such(small_darkroom, tmp_path, capsy
                  "--out", str(tmp_path / "m")]) == 1  # fmt: skip
     err = capsys.readouterr().err
     assert "has no field 'source'" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("command", [["filter", "d", "--out", "s"], ["evaluate", "--model", "m", "--out", "e"],
+                                     ["train", "--dataset", "d", "--objective", "ad", "--out", "m"]])  # fmt: skip
+def test_a_negative_seed_names_its_flag(command, capsys):
+    assert main([*command, "--seed", "-1"]) == 1
+    assert "seed must be >= 0, got -1" in capsys.readouterr().err
