@@ -14,7 +14,7 @@ import sys
 
 
 def _quit_while_starting(signum, frame) -> None:
-    sys.stderr.write("lhf: interrupted\n")
+    sys.stderr.write(f"lhf: {'terminated' if signum == signal.SIGTERM else 'interrupted'}\n")
     sys.stderr.flush()
     os._exit(128 + signum)  # only imports have run: nothing to clean up
 

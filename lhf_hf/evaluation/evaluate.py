@@ -11,7 +11,7 @@ from transformers import AutoConfig
 from lhf_hf.configs.evaluate import EvalConfig
 from lhf_hf.envs import get_spec, task_split
 from lhf_hf.modeling import load_model
-from lhf_hf.training.card import MODEL_EVALS_FILE, write_model_card
+from lhf_hf.training.card import MODEL_EVALS_FILE, evaluation_problems, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
 from lhf_hf.utils.io import read_json, write_json_atomic
@@ -95,9 +95,8 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         )
     evals_path = model_dir / MODEL_EVALS_FILE
     if evals_path.is_file() and not is_hub_snapshot(model_dir):  # before the rollouts, not after
-        evals = read_json(evals_path)
-        if not isinstance(evals, list):
-            raise ValueError(f"{evals_path} is not a list of evaluations: the file is damaged")
+        for problem in evaluation_problems(read_json(evals_path)):
+            raise ValueError(f"{evals_path} {problem}: the file is damaged (not evaluated)")
     model = load_model(str(model_dir))
     mc = model.config
     env_id = cfg.env_id or mc.env_id
@@ -113,6 +112,13 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         )
     train_cfg_path = model_dir / TRAIN_CONFIG_FILE
     train_cfg = read_json(train_cfg_path) if train_cfg_path.exists() else None
+    recorded = ((train_cfg or {}).get("dataset") or {}).get("tasks")
+    if recorded is not None and mc.train_tasks is not None and sorted(recorded) != mc.train_tasks:
+        # two records of one training disagree: one was edited (a folder without a manifest)
+        raise ValueError(
+            f"{cfg.model}: config.json's train_tasks ({len(mc.train_tasks)} tasks) disagree with "
+            f"{TRAIN_CONFIG_FILE}'s dataset tasks ({len(recorded)}): one was edited; not evaluated"
+        )
     split_seed = cfg.split_seed
     if split_seed is None:  # the model's own split (its config: checkpoint-N folders have it too)
         split_seed = mc.split_seed if mc.split_seed is not None else 0

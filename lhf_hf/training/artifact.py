@@ -13,7 +13,7 @@ from lhf_hf.modeling import load_model
 from lhf_hf.utils.hub import HubArtifact
 from lhf_hf.utils.io import read_json
 
-from .card import MODEL_EVALS_FILE, render_model_card
+from .card import MODEL_EVALS_FILE, evaluation_problems, render_model_card
 from .trainer import TRAIN_CONFIG_FILE
 
 
@@ -50,10 +50,11 @@ class CheckpointArtifact(HubArtifact):
         evals = path / MODEL_EVALS_FILE  # mutable (evaluations add to it), but must still parse
         if evals.is_file():
             try:
-                if not isinstance(read_json(evals), list):
-                    return [f"{evals} is not a list of evaluations"]
+                problems = [f"{evals} {p}" for p in evaluation_problems(read_json(evals))]
             except ValueError as exc:
                 return [str(exc)]
+            if problems:
+                return problems
         try:
             data = read_json(path / TRAIN_CONFIG_FILE).get("dataset") or {}
         except (ValueError, AttributeError) as exc:

@@ -37,6 +37,26 @@ def plot_loss(log_history: list[dict], path: Path) -> None:
     save_figure_atomic(fig, path)
 
 
+#: What every entry of a model's evaluations list holds (the card's row and model-index use them).
+EVAL_ENTRY_KEYS = frozenset(
+    {"out", "env_id", "num_tasks", "tasks", "split_seed", "episodes", "plan", "mean_return",
+     "final_return"}
+)  # fmt: skip
+
+
+def evaluation_problems(evals) -> list[str]:
+    """Why ``evals`` (a model's ``evaluations.json``) is not a list of evaluation entries."""
+    if not isinstance(evals, list):
+        return ["is not a list of evaluations"]
+    for i, e in enumerate(evals):
+        if not isinstance(e, dict):
+            return [f"entry {i} is not an object"]
+        missing = sorted(EVAL_ENTRY_KEYS - set(e))
+        if missing:
+            return [f"entry {i} lacks {', '.join(missing)}"]
+    return []
+
+
 def eval_section(evaluations: list[dict]) -> str:
     if not evaluations:
         return NO_EVAL

@@ -168,7 +168,9 @@ def upload_files(root: Path) -> list[str]:
     for folder, dirs, files in os.walk(root, followlinks=False):
         here = Path(folder)
         rel_dir = here.relative_to(root)
-        if any(_EXCLUDED_DIRS.match(part) for part in rel_dir.parts):
+        if any(_EXCLUDED_DIRS.match(part) for part in rel_dir.parts) or (
+            rel_dir.parts and (here / MARKER).exists()
+        ):  # another artifact inside this one (an evaluation --out MODEL/eval): not this push's
             dirs[:] = []
             continue
         for name in [*dirs, *files]:

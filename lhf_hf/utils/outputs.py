@@ -41,7 +41,7 @@ from pathlib import Path
 from lhf_hf import __version__
 
 from .io import read_json, sha256_file, write_json_atomic
-from .signals import interrupts_ignored
+from .signals import interrupts_held, interrupts_ignored
 
 MARKER = ".lhf_output.json"
 #: (kind, folder) of every artifact this process completed (switched in), in order: an interrupt
@@ -144,7 +144,29 @@ def _not_written_by_it(root: Path, own_nested: Iterable[str] = ()) -> list[str]:
     added = [
         str(rel) for rel in _listed_files(root, marker.get("mutable", ())) if str(rel) not in files
     ]
-    return sorted(nested) + added
+    # what the manifest never lists, and so a manifest check cannot see: hidden files and
+    # folders (a user's .notes, a .git) and empty folders
+    unseen = []
+    for folder, dirs, names in os.walk(root):
+        here = Path(folder)
+        dirs[:] = [d for d in dirs if not (here / d / MARKER).exists()]
+        for name in [*dirs, *names]:
+            rel = (here / name).relative_to(root)
+            if name.startswith(".") and not _ours_hidden(name):
+                unseen.append(f"{rel}{'/' if name in dirs else ''}")
+            elif name in dirs and not any((here / name).iterdir()):
+                unseen.append(f"{rel}/ (empty)")
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+    return sorted(nested) + added + sorted(unseen)
+
+
+def _ours_hidden(name: str) -> bool:
+    """Hidden names lhf writes itself: markers, locks, atomic writes' temporaries, asides."""
+    return (
+        name == MARKER
+        or name.endswith((".lock", ".tmp"))
+        or any(f".{tag}-" in name for tag in ("replaced", "unfinished", "importing"))
+    )
 
 
 def record_manifest(out: Path, kind: str, mutable: Iterable[str] = ()) -> None:
@@ -407,9 +429,10 @@ def output_folder(
         try:
             yield real
             # The switch from old to new runs whole: an interrupt landing in it would leave the
-            # new artifact without its manifest or the old one half deleted.  One landing before
-            # it (in this very line) still puts the old one back below.
-            with interrupts_ignored():
+            # new artifact without its manifest or the old one half deleted, so it waits and is
+            # delivered after (the new artifact is then complete, and said so).  One landing
+            # before it (in this very line) still puts the old one back below.
+            with interrupts_held():
                 record_manifest(real, kind, mutable)
                 if on_switch is not None:
                     on_switch()

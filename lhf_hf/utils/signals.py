@@ -60,6 +60,24 @@ def interrupts_ignored() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
+@contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM wait: one that arrives is delivered (to the handler
+    before the block) once the block is done.  For a step that must complete, after which the
+    interrupt still stops the program: the switch from an old artifact to its new one."""
+    got: list[int] = []
+    held = {}
+    if threading.current_thread() is threading.main_thread():
+        held = {sig: signal.signal(sig, lambda s, f: got.append(s)) for sig in INTERRUPTS}
+    try:
+        yield
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
+        if got:
+            signal.raise_signal(got[0])
+
+
 #: The signal that interrupted this program (``interrupts_raise_once``), once one has.
 _received: list[int] = []
 

@@ -176,3 +176,18 @@ def test_a_record_edited_after_training_is_not_trusted(trained, tmp_path):
     with pytest.raises(ValueError, match=r"config.json changed since `lhf train` wrote it"):
         evaluate(EvalConfig(model=str(model), out=str(tmp_path / "e2"), tasks="train",
                             episodes=1), False)  # fmt: skip
+
+
+@pytest.mark.parametrize("content", ["[1, 2]", '[{"out": "x"}]', '{"a": 1}'])
+def test_a_damaged_evaluations_list_is_refused_before_the_rollouts(trained, tmp_path, content):
+    from lhf_hf.training.artifact import CheckpointArtifact
+
+    model = tmp_path / "m"
+    shutil.copytree(trained, model)
+    (model / "evaluations.json").write_text(content)
+    with pytest.raises(ValueError, match="evaluations.json .*the file is damaged"):
+        evaluate(
+            EvalConfig(model=str(model), out=str(tmp_path / "e"), episodes=1, tasks="38"), False
+        )
+    assert not (tmp_path / "e").exists()
+    assert any("evaluations.json" in p for p in CheckpointArtifact.verify(model))

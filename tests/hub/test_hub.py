@@ -345,6 +345,11 @@ def test_upload_file_selection(tmp_path):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("x")
     assert upload_files(tmp_path) == ["config.json", "meta/info.json", "model.safetensors"]
+    # an artifact inside this one (an evaluation --out MODEL/eval) is its own, never pushed here
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / ".lhf_output.json").write_text("{}")
+    (tmp_path / "eval" / "eval_results.json").write_text("{}")
+    assert upload_files(tmp_path) == ["config.json", "meta/info.json", "model.safetensors"]
 
 
 def test_push_publishes_only_finished_unchanged_artifacts(

@@ -364,7 +364,7 @@ def test_an_interrupt_after_the_body_puts_the_old_artifact_back(tmp_path, capsys
 
 def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch):
     """Ctrl-C while the manifest is written and the old copy deleted: the switch completes (the
-    new artifact whole, no half-deleted aside) instead of stopping half way."""
+    new artifact whole, no half-deleted aside), then the interrupt is delivered."""
     import signal
 
     import lhf_hf.utils.outputs as outputs
@@ -378,10 +378,12 @@ def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch):
         real_record(*args, **kwargs)
 
     monkeypatch.setattr(outputs, "record_manifest", record_then_interrupt)
-    with output_folder(s, "selection", overwrite=True) as new:
-        (new / "x").write_text("new")
+    with pytest.raises(KeyboardInterrupt):  # delivered once the switch is done
+        with output_folder(s, "selection", overwrite=True) as new:
+            (new / "x").write_text("new")
     assert (s / "x").read_text() == "new" and not list(tmp_path.glob(".s.replaced-*"))
     assert "files" in json.loads((s / MARKER).read_text())
+    assert outputs.COMPLETED[-1] == ("selection", s.resolve())  # what main names as completed
 
 
 def test_an_output_inside_an_input_dataset_is_refused(tmp_path):
@@ -411,3 +413,26 @@ def test_overwriting_an_unfinished_artifact_keeps_it_beside(tmp_path, capsys):
     (kept,) = tmp_path.glob(".d.unfinished-*")
     assert (kept / "mine.txt").read_text() == "mine" and _files(out) == [MARKER, "data.parquet"]
     assert f"is kept at {kept}" in capsys.readouterr().err
+
+
+def test_hidden_files_and_empty_folders_are_not_the_commands(tmp_path):
+    """The manifest never lists hidden names or empty folders, so they are checked apart: an
+    overwrite refuses a user's .notes, .git or empty folder instead of deleting it."""
+    with output_folder(tmp_path / "m", "model") as m:
+        (m / "w").write_text("old")
+    for extra in (".notes", ".git/HEAD", "mydir/"):
+        target = m / extra
+        if extra.endswith("/"):
+            target.mkdir()
+        else:
+            target.parent.mkdir(exist_ok=True)
+            target.write_text("mine")
+        with pytest.raises(OutputError, match="did not write"):
+            with output_folder(m, "model", overwrite=True):
+                pytest.fail("the body must not run")
+        assert target.exists()
+        shutil.rmtree(target) if target.is_dir() else target.unlink()
+        if extra == ".git/HEAD":
+            (m / ".git").rmdir()
+    with output_folder(m, "model", overwrite=True) as new:  # our own hidden files are ours
+        (new / "w").write_text("new")
