@@ -8,7 +8,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Literal, get_args
 
-from lhf_hf.envs import get_spec
+from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
 
 from .types import check_types
 
@@ -100,17 +100,16 @@ def ppo_preset(env_id: str) -> PPOSettings:
 def parse_tasks(
     tasks: str | list[int] | tuple[int, ...], env_id: str, split_seed: int
 ) -> list[int]:
-    """``all`` | ``train`` | ``test`` | ``train:N`` / ``test:N`` (the first N of that split, for
-    reduced-scale runs) | ``"0,3,7"`` | a list of ints -> sorted unique task indices."""
+    """``all`` | ``train`` | ``test`` | ``fit`` | ``validation`` | ``PART:N`` (the first N of that
+    part, for reduced-scale runs) | ``"0,3,7"`` | a list of ints -> sorted unique task indices."""
     spec = get_spec(env_id)
     if isinstance(tasks, str):
         key = tasks.strip().lower()
         if key == "all":
             return list(range(spec.num_tasks))
         part, _, count = key.partition(":")
-        if part in ("train", "test"):
-            train, test = spec.split(split_seed)
-            chosen = sorted(train if part == "train" else test)
+        if part in SPLIT_PARTS:
+            chosen = sorted(split_part(env_id, part, split_seed))
             if not count:
                 return chosen
             if not count.isdigit() or int(count) < 1:
@@ -120,7 +119,8 @@ def parse_tasks(
             tasks = [int(t) for t in key.split(",") if t.strip()]
         except ValueError:
             raise ValueError(
-                f"tasks must be 'all', 'train', 'test' or a comma-separated list of ints, got {tasks!r}"
+                f"tasks must be 'all', 'train', 'test', 'fit', 'validation' or a comma-separated "
+                f"list of ints, got {tasks!r}"
             ) from None
     out = sorted({spec.check_task(int(t)) for t in tasks})
     if not out:
@@ -134,8 +134,9 @@ class CollectConfig:
 
     env_id: registered env id (``lhf envs``).
     tasks: ``train`` (the default: the train split of ``split_seed``, so its test tasks stay
-        unseen), ``all``, ``test``, ``train:N`` / ``test:N`` (the first N of that split), task
-        indices ``0,3,7``, or a list of them (resolved to a sorted list).
+        unseen), ``all``, ``test``, ``fit`` (the train tasks without the validation tasks: data
+        for tuning runs), ``validation``, ``PART:N`` (the first N of that part), task indices
+        ``0,3,7``, or a list of them (resolved to a sorted list).
     histories: learning histories per task (paper: 100).
     steps: transitions per history; a multiple of the env's horizon (paper: 1000, Meta-World 10,000).
     protocol: ``paper`` (one learner per task acting in ``histories`` parallel copies, one history per

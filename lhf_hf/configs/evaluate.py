@@ -6,6 +6,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from lhf_hf.envs import SPLIT_PARTS
+
 from .types import check_types
 
 Context = Literal["auto", "cache", "recompute", "window"]
@@ -26,7 +28,9 @@ class EvalConfig:
     env_id: the env to evaluate on; None = the model's.  Must match the model's spaces.
     split_seed: train/test split; None = the split of the model's training data (recorded in its
         config, also in every ``checkpoint-N``).
-    tasks: ``test`` (the unseen tasks, the paper's protocol), ``train``, or task indices "0,3,7".
+    tasks: ``test`` (the unseen tasks, the paper's protocol), ``validation`` (train tasks held out
+        of ``--tasks fit`` data: where tuning choices are made), ``train``, ``fit``, or task
+        indices "0,3,7".
     allow_seen: evaluate tasks the model was trained on (or a model that does not record its
         training tasks); without it they are refused.  Results, plot and card then say "seen tasks".
     episodes: episodes per task (paper: 100), from an empty context.
@@ -94,12 +98,13 @@ class EvalConfig:
             raise ValueError(f"EvalConfig.seed must be >= 0, got {self.seed!r}")
         if self.split_seed is not None and self.split_seed < 0:
             raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
-        if self.tasks not in ("test", "train"):
+        if self.tasks not in SPLIT_PARTS:
             try:
                 [int(t) for t in self.tasks.split(",")]
             except ValueError:
                 raise ValueError(
-                    f"EvalConfig.tasks must be 'test', 'train' or comma-separated task indices, got {self.tasks!r}"
+                    "EvalConfig.tasks must be 'test', 'train', 'validation', 'fit' or "
+                    f"comma-separated task indices, got {self.tasks!r}"
                 ) from None
 
     def to_dict(self) -> dict:

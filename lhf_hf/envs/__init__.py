@@ -5,6 +5,7 @@ Public surface::
     make(env_id, task, **kwargs) -> gymnasium.Env
     make_batched(env_id, tasks) -> batched core       # envs whose spec has ``batched``
     task_split(env_id, seed=0) -> (train_tasks, test_tasks)
+    split_part(env_id, part, seed=0) -> tasks of 'train' | 'test' | 'validation' | 'fit'
     list_env_ids() -> list[str]
     get_spec(env_id) -> EnvSpec
 """
@@ -12,7 +13,7 @@ Public surface::
 from . import gridworlds, metaworld_ml1  # noqa: F401  (registers the envs)
 from .gridworld_core import BatchedGridworld, GridworldVariant
 from .gridworld_env import GridworldEnv
-from .registry import EnvSpec, get_spec, list_env_ids, make, task_split
+from .registry import SPLIT_PARTS, EnvSpec, get_spec, list_env_ids, make, split_part, task_split
 
 
 def make_batched(env_id: str, tasks) -> BatchedGridworld:
@@ -29,9 +30,11 @@ __all__ = [
     "EnvSpec",
     "GridworldEnv",
     "GridworldVariant",
+    "SPLIT_PARTS",
     "get_spec",
     "list_env_ids",
     "make",
     "make_batched",
+    "split_part",
     "task_split",
 ]

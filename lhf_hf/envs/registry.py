@@ -119,6 +119,24 @@ class EnvSpec:
         return self.num_tasks - self.num_train_tasks
 
     @property
+    def num_validation_tasks(self) -> int:
+        """Validation tasks per split: as many as the test tasks, at most a quarter of the train
+        tasks (so tuning runs still train on >= 3/4 of them)."""
+        return min(self.num_test_tasks, self.num_train_tasks // 4)
+
+    def validation_split(self, split_seed: int) -> tuple[list[int], list[int]]:
+        """(fit, validation): split ``split_seed``'s train tasks, the last ``num_validation_tasks``
+        of them (in the split's own order, shuffled for gridworlds) held out for tuning.
+
+        Every tuning choice (budgets, gates, weights, rollouts) is made by training on the fit
+        tasks and evaluating on the validation tasks; the test tasks stay for reporting.  The
+        train split itself is unchanged, so reported runs still train on every train task.
+        """
+        train, _ = self.split(split_seed)
+        k = self.num_validation_tasks
+        return list(train[:-k]), list(train[-k:])
+
+    @property
     def is_discrete(self) -> bool:
         return isinstance(self.action_space, gym.spaces.Discrete)
 
@@ -152,6 +170,7 @@ class EnvSpec:
             "num_tasks": self.num_tasks,
             "num_train_tasks": self.num_train_tasks,
             "num_test_tasks": self.num_test_tasks,
+            "num_validation_tasks": self.num_validation_tasks,
             "state_space": describe_space(self.state_space),
             "action_space": describe_space(self.action_space),
             "optimal_return": opt,
@@ -213,6 +232,22 @@ def task_split(env_id: str, seed: int = 0) -> tuple[list[int], list[int]]:
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise TypeError(f"split seed must be an int, got {seed!r}")
     return get_spec(env_id).split(int(seed))
+
+
+def split_part(env_id: str, part: str, seed: int = 0) -> list[int]:
+    """The task indices of one named part of split ``seed``: ``train`` or ``test`` (the split),
+    ``validation`` (held-out train tasks for tuning) or ``fit`` (the train tasks without them)."""
+    train, test = task_split(env_id, seed)
+    if part in ("train", "test"):
+        return list(train if part == "train" else test)
+    if part in ("fit", "validation"):
+        fit, validation = get_spec(env_id).validation_split(int(seed))
+        return fit if part == "fit" else validation
+    raise ValueError(f"unknown split part {part!r}: use one of {', '.join(SPLIT_PARTS)}")
+
+
+#: the named parts of a split (``split_part``)
+SPLIT_PARTS = ("train", "test", "validation", "fit")
 
 
 def shuffled_split(num_tasks: int, num_train: int, seed: int) -> tuple[list[int], list[int]]:

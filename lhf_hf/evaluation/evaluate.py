@@ -9,7 +9,7 @@ import numpy as np
 from transformers import AutoConfig
 
 from lhf_hf.configs.evaluate import EvalConfig
-from lhf_hf.envs import get_spec, task_split
+from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
 from lhf_hf.modeling import load_model
 from lhf_hf.training.card import MODEL_EVALS_FILE, evaluation_problems, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
@@ -28,11 +28,10 @@ CURVE_FILE = "eval_curve.png"
 
 
 def resolve_tasks(spec_env: str, tasks: str, split_seed: int) -> list[int]:
-    train, test = task_split(spec_env, split_seed)
-    if tasks == "test":
-        return list(test)
-    if tasks == "train":
-        return list(train)
+    """``test`` | ``train`` | ``validation`` | ``fit`` (parts of split ``split_seed``) or task
+    indices ``"0,3,7"`` -> task indices."""
+    if tasks in SPLIT_PARTS:
+        return split_part(spec_env, tasks, split_seed)
     return [int(t) for t in tasks.split(",")]
 
 

@@ -43,6 +43,11 @@ def test_tasks_and_presets():
     assert len(CollectConfig("darkroom", tasks="all").tasks) == 81
     assert len(CollectConfig("darkroom").tasks) == 73  # the train split by default
     assert CollectConfig("darkroom", tasks="7, 3,3").tasks == [3, 7]
+    # tuning data: the train tasks without the validation tasks (held out for evaluation)
+    assert CollectConfig("darkroom", tasks="validation").tasks == [12, 17, 27, 36, 45, 61, 64, 68]
+    fit = CollectConfig("darkroom", tasks="fit").tasks
+    assert len(fit) == 65 and not {12, 17, 27, 36, 45, 61, 64, 68} & set(fit)
+    assert CollectConfig("darkroom", tasks="fit:3").tasks == fit[:3]
     assert (
         ppo_preset("dark-key-to-door").n_epochs == 10
         and ppo_preset("metaworld-push").n_steps == 100

@@ -4,7 +4,7 @@ import random
 
 import pytest
 
-from lhf_hf.envs import get_spec, list_env_ids, make, task_split
+from lhf_hf.envs import get_spec, list_env_ids, make, split_part, task_split
 
 EXPECTED_SPLITS = {
     "darkroom": (73, 8),
@@ -104,3 +104,30 @@ def test_spec_validation():
         EnvSpec(**{**spec.__dict__, "family": ""})
     with pytest.raises(ValueError, match="ppo"):
         EnvSpec(**{**spec.__dict__, "ppo": (20, 0, 20)})
+
+
+@pytest.mark.parametrize("env_id", [*EXPECTED_SPLITS, "metaworld-reach"])
+def test_validation_tasks_are_held_out_train_tasks(env_id):
+    # The validation tasks come from the train split (never the test split), fit + validation is
+    # exactly the train split, and the test split is untouched (reported runs keep every train task).
+    spec = get_spec(env_id)
+    train, test = task_split(env_id, seed=0)
+    fit, validation = split_part(env_id, "fit", 0), split_part(env_id, "validation", 0)
+    assert len(validation) == min(len(test), len(train) // 4) == spec.num_validation_tasks
+    assert set(validation).isdisjoint(fit) and set(validation).isdisjoint(test)
+    assert sorted(fit + validation) == sorted(train)
+    assert split_part(env_id, "test", 0) == test and split_part(env_id, "train", 0) == train
+
+
+def test_validation_tasks_are_the_last_of_the_shuffled_train_tasks():
+    # Darkroom split 0 (the reference's shuffle): the last 8 of the 73 train tasks, by hand.
+    tasks = list(range(81))
+    random.Random(0).shuffle(tasks)
+    assert split_part("darkroom", "validation", 0) == tasks[65:73]
+    assert split_part("darkroom", "validation", 0) == [12, 68, 36, 17, 64, 27, 45, 61]
+    assert split_part("darkroom", "validation", 1) != split_part("darkroom", "validation", 0)
+
+
+def test_unknown_split_part_is_named():
+    with pytest.raises(ValueError, match="unknown split part 'heldout'.*validation"):
+        split_part("darkroom", "heldout", 0)

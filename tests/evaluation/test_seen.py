@@ -191,3 +191,17 @@ def test_a_damaged_evaluations_list_is_refused_before_the_rollouts(trained, tmp_
         )
     assert not (tmp_path / "e").exists()
     assert any("evaluations.json" in p for p in CheckpointArtifact.verify(model))
+
+
+def test_validation_tasks_are_evaluated_by_name(trained, tmp_path):
+    """`--tasks validation`: split 0's held-out train tasks, none of which this model trained on;
+    `--tasks train` holds 3 and 40, which it did."""
+    res = evaluate(
+        EvalConfig(model=str(trained), out=str(tmp_path / "v"), episodes=1, tasks="validation"),
+        False,
+    )
+    assert sorted(res["tasks"]) == [12, 17, 27, 36, 45, 61, 64, 68]
+    assert res["task_label"] == "unseen tasks" and res["seen_tasks"] == []
+    with pytest.raises(SeenTasksError, match=r"\(3, 40\)"):
+        evaluate(EvalConfig(model=str(trained), out=str(tmp_path / "t"), episodes=1,
+                            tasks="train"), False)  # fmt: skip
