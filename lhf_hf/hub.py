@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.filtering.artifact import SelectionArtifact
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.training.artifact import CheckpointArtifact
@@ -63,7 +64,7 @@ def artifact_for(path: Path) -> type[HubArtifact]:
     for artifact in ARTIFACTS:
         if artifact.detect(path):
             return artifact
-    raise ValueError(
+    raise UserError(
         f"{path} is not an lhf artifact: expected a history dataset (meta/info.json), a selection "
         "(filter_config.json) or a checkpoint (config.json)"
     )
@@ -91,7 +92,7 @@ def push(
     """
     path = Path(path)
     if not path.is_dir():
-        raise FileNotFoundError(f"no artifact folder at {path}")
+        raise NotFoundError(f"no artifact folder at {path}")
     return artifact_for(path).push(
         path,
         repo_id,

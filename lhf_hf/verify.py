@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.filtering.artifact import SelectionArtifact
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.hub import artifact_for
@@ -39,7 +40,7 @@ def verify(path: str | Path) -> dict:
     if not path.is_dir() and parse_hub_ref(spec) is not None:
         path = _snapshot(spec)
     if not path.is_dir():
-        raise FileNotFoundError(f"no folder at {path}")
+        raise NotFoundError(f"no folder at {path}")
     kind, problems = check_manifest(path)
     manifest = kind is not None
     notes = [] if manifest else problems  # an older folder: no manifest to check, only a note
@@ -49,7 +50,7 @@ def verify(path: str | Path) -> dict:
         try:
             artifact = artifact_for(path)
         except ValueError:
-            raise ValueError(
+            raise UserError(
                 f"{path} is not an lhf output folder (no {MARKER} and no artifact files)"
             ) from None
         kind = next(k for k, a in CHECKS.items() if a is artifact)

@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import signal
 import sys
+import traceback
 from contextlib import nullcontext
 
 from lhf_hf import __version__
+from lhf_hf.errors import UserError
 from lhf_hf.utils.signals import (
     Terminated,
     ignore_interrupts,
@@ -86,24 +89,14 @@ def _run(args: argparse.Namespace, program: bool) -> int:
             ignore_interrupts()
         print(f"lhf {args.command}: terminated{_completed()}", file=sys.stderr)
         return int(exc.code)
-    except (
-        KeyError,
-        ValueError,
-        IndexError,
-        TypeError,
-        ImportError,
-        FileNotFoundError,
-        FileExistsError,
-        RuntimeError,
-    ) as exc:
+    except UserError as exc:
         if program and interrupted_by() is not None:
             raise  # an interrupt a library wrapped: main reports it as the interrupt
-        # User errors: one clear line, no traceback.
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        if isinstance(exc, KeyError) and isinstance(msg, str) and " " not in msg:
-            # a bare key: a file it read lacks a field (our own KeyErrors are sentences)
-            msg = f"a file it read has no field {msg!r} (damaged, or not written by lhf_hf)"
-        print(f"lhf {args.command}: error: {msg}", file=sys.stderr)
+        # An expected failure: one clear line (LHF_DEBUG=1: with its traceback).  Anything else
+        # is a bug and keeps its traceback.
+        if os.environ.get("LHF_DEBUG", "") not in ("", "0"):
+            traceback.print_exc()
+        print(f"lhf {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except MemoryError:
         print(

@@ -21,6 +21,7 @@ from tqdm.auto import tqdm
 
 from lhf_hf.configs.collect import CollectConfig
 from lhf_hf.envs import get_spec, make_batched
+from lhf_hf.errors import UserRuntimeError
 from lhf_hf.histories.schema import TaskHistories
 
 from . import backend_verdict, native
@@ -33,7 +34,7 @@ logger = logging.getLogger(__name__)
 def check_device(name: str) -> torch.device:
     device = torch.device(name)
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError(
+        raise UserRuntimeError(
             f"CollectConfig.device={name!r}, but torch sees no CUDA device here "
             f"(torch {torch.__version__}); collect with device='cpu'"
         )

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import torch
 
+from lhf_hf.errors import UserError, UserRuntimeError
 from lhf_hf.utils.io import sha256_file
 from lhf_hf.utils.signals import interrupts_ignored
 
@@ -50,7 +51,7 @@ FLAGS = (
 )
 
 
-class KernelUnavailable(RuntimeError):
+class KernelUnavailable(UserRuntimeError):
     """The C++ kernel cannot be built or loaded here (the message says why)."""
 
 
@@ -271,7 +272,7 @@ def ppo_act(
     if uniforms is not None:
         uniforms = uniforms.to(torch.float32).contiguous()
         if uniforms.shape != (L, E):
-            raise ValueError(f"uniforms: expected shape ({L}, {E}), got {tuple(uniforms.shape)}")
+            raise UserError(f"uniforms: expected shape ({L}, {E}), got {tuple(uniforms.shape)}")
         actions, logp = torch.empty(L, E, dtype=torch.int64), torch.empty(L, E)
         args.uniforms, args.actions, args.logp = (
             uniforms.data_ptr(),

@@ -14,6 +14,8 @@ import logging
 
 import torch
 
+from lhf_hf.errors import UserError
+
 from . import native
 from .batched_ppo import Rollout, StackedPolicy, ppo_update_autograd
 from .ppo_kernel import kernel_unsupported, ppo_update_kernel
@@ -40,7 +42,7 @@ def ppo_update(
     ``generator``.  Runs on the device of ``policy`` and ``data``.
     """
     if gradients not in GRADIENTS:
-        raise ValueError(f"gradients must be one of {GRADIENTS}, got {gradients!r}")
+        raise UserError(f"gradients must be one of {GRADIENTS}, got {gradients!r}")
     args = (policy, optimizer, data, n_epochs, batch_size, permutations, generator)
     if gradients == "autograd":
         return ppo_update_autograd(*args)

@@ -12,6 +12,8 @@ import math
 
 import torch
 
+from lhf_hf.errors import UserError
+
 from . import native
 from .batched_ppo import CLIP_RANGE, MAX_GRAD_NORM, VF_COEF, Rollout, StackedPolicy
 
@@ -66,7 +68,7 @@ def ppo_update_kernel(
     if permutations is not None:
         perms = torch.stack([torch.as_tensor(p, dtype=torch.int64) for p in permutations])
         if perms.shape != (n_epochs, L, N):
-            raise ValueError(
+            raise UserError(
                 f"permutations: expected {n_epochs} of shape ({L}, {N}), got {tuple(perms.shape)}"
             )
         perms = perms.contiguous()

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
+from lhf_hf.errors import UserError
 
 from .types import check_types
 
@@ -46,13 +47,13 @@ class PPOSettings:
         check_types(self)
         for name in ("n_steps", "batch_size", "n_epochs"):
             if getattr(self, name) < 1:
-                raise ValueError(f"PPOSettings.{name} must be >= 1, got {getattr(self, name)!r}")
+                raise UserError(f"PPOSettings.{name} must be >= 1, got {getattr(self, name)!r}")
         if not 0 < self.learning_rate < 1:
-            raise ValueError(
+            raise UserError(
                 f"PPOSettings.learning_rate must be in (0, 1), got {self.learning_rate!r}"
             )
         if not 0 < self.gamma <= 1:
-            raise ValueError(f"PPOSettings.gamma must be in (0, 1], got {self.gamma!r}")
+            raise UserError(f"PPOSettings.gamma must be in (0, 1], got {self.gamma!r}")
 
 
 @dataclass(frozen=True)
@@ -73,9 +74,9 @@ class SACSettings:
     def __post_init__(self) -> None:
         check_types(self)
         if self.batch_size < 1:
-            raise ValueError(f"SACSettings.batch_size must be >= 1, got {self.batch_size!r}")
+            raise UserError(f"SACSettings.batch_size must be >= 1, got {self.batch_size!r}")
         if not 0 < self.learning_rate < 1:
-            raise ValueError(
+            raise UserError(
                 f"SACSettings.learning_rate must be in (0, 1), got {self.learning_rate!r}"
             )
 
@@ -85,7 +86,7 @@ def _settings(cls: type, given: dict, name: str):
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(given) - known)
     if unknown:
-        raise ValueError(
+        raise UserError(
             f"CollectConfig.{name}: unknown setting {unknown[0]!r} (one of {sorted(known)})"
         )
     return cls(**given)
@@ -113,18 +114,18 @@ def parse_tasks(
             if not count:
                 return chosen
             if not count.isdigit() or int(count) < 1:
-                raise ValueError(f"tasks {tasks!r}: N in '{part}:N' must be a positive integer")
+                raise UserError(f"tasks {tasks!r}: N in '{part}:N' must be a positive integer")
             return chosen[: int(count)]
         try:
             tasks = [int(t) for t in key.split(",") if t.strip()]
         except ValueError:
-            raise ValueError(
+            raise UserError(
                 f"tasks must be 'all', 'train', 'test', 'fit', 'validation' or a comma-separated "
                 f"list of ints, got {tasks!r}"
             ) from None
     out = sorted({spec.check_task(int(t)) for t in tasks})
     if not out:
-        raise ValueError("tasks is empty: nothing to collect")
+        raise UserError("tasks is empty: nothing to collect")
     return out
 
 
@@ -187,34 +188,34 @@ class CollectConfig:
         check_types(self)
         spec = get_spec(self.env_id)  # unknown ids: error listing the valid ones
         if self.protocol not in PROTOCOLS:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.protocol must be one of {PROTOCOLS}, got {self.protocol!r}"
             )
         if self.algo not in ALGOS:
-            raise ValueError(f"CollectConfig.algo must be one of {ALGOS}, got {self.algo!r}")
+            raise UserError(f"CollectConfig.algo must be one of {ALGOS}, got {self.algo!r}")
         if self.collector not in COLLECTORS:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.collector must be one of {COLLECTORS}, got {self.collector!r}"
             )
         if self.algo == "sac" and spec.is_discrete:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.algo='sac' needs continuous actions; {self.env_id} has {spec.action_space}"
             )
         if self.histories < 1:
-            raise ValueError(f"CollectConfig.histories must be >= 1, got {self.histories!r}")
+            raise UserError(f"CollectConfig.histories must be >= 1, got {self.histories!r}")
         if self.steps < spec.horizon or self.steps % spec.horizon:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.steps must be a positive multiple of the horizon of {self.env_id} "
                 f"({spec.horizon}), got {self.steps!r}"
             )
         if self.workers < 1:
-            raise ValueError(f"CollectConfig.workers must be >= 1, got {self.workers!r}")
+            raise UserError(f"CollectConfig.workers must be >= 1, got {self.workers!r}")
         if not 0.0 <= self.noisy_fraction < 1.0:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.noisy_fraction must be in [0, 1), got {self.noisy_fraction!r}"
             )
         if self.protocol == "noisy" and self.histories - self.num_random_histories < 1:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig: noisy protocol with {self.histories} histories leaves no learner histories"
             )
         if isinstance(self.ppo, dict):
@@ -223,29 +224,29 @@ class CollectConfig:
             self.sac = _settings(SACSettings, self.sac, "sac")
         for name in ("seed", "split_seed"):
             if getattr(self, name) < 0:
-                raise ValueError(f"CollectConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+                raise UserError(f"CollectConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if self.ppo is None:
             self.ppo = ppo_preset(self.env_id)
         self.tasks = parse_tasks(self.tasks, self.env_id, self.split_seed)
         if not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.device must be 'cpu' or 'cuda[:N]', got {self.device!r}"
             )
         if self.device != "cpu" and self.collector != "batched":
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.device={self.device!r} needs collector='batched' (SB3 runs on the CPU)"
             )
         if self.ppo_backend not in PPO_BACKENDS:
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.ppo_backend must be one of {PPO_BACKENDS}, got {self.ppo_backend!r}"
             )
         if self.ppo_backend == "kernel" and self.device != "cpu":
-            raise ValueError(
+            raise UserError(
                 f"CollectConfig.ppo_backend='kernel' runs on the CPU; device={self.device!r} needs 'torch'"
             )
         if self.collector == "batched":
             if spec.batched is None or self.algo != "ppo":
-                raise ValueError(
+                raise UserError(
                     f"CollectConfig.collector='batched' runs PPO on envs with a batched core "
                     f"(the gridworlds only), got "
                     f"{self.env_id} with {self.algo}; use collector='sb3'"
@@ -253,7 +254,7 @@ class CollectConfig:
             if self.tasks_per_chunk is None:
                 self.tasks_per_chunk = max(1, CHUNK_TRANSITIONS // self.frames_per_task)
             if self.tasks_per_chunk < 1:
-                raise ValueError(
+                raise UserError(
                     f"CollectConfig.tasks_per_chunk must be >= 1, got {self.tasks_per_chunk!r}"
                 )
 

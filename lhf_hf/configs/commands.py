@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from lhf_hf.errors import UserError
+
 from .types import check_types
 
 ExperimentPreset = Literal["quick", "cpu", "paper"]
@@ -32,7 +34,7 @@ class OutputOptions:
     def __post_init__(self) -> None:
         check_types(self)
         if self.resume and self.overwrite:
-            raise ValueError("resume and overwrite exclude each other")
+            raise UserError("resume and overwrite exclude each other")
 
 
 @dataclass(frozen=True)
@@ -141,18 +143,18 @@ class ReproduceOptions:
 
     def __post_init__(self) -> None:
         if self.jobs < 1:
-            raise ValueError(f"jobs must be >= 1, got {self.jobs}")
+            raise UserError(f"jobs must be >= 1, got {self.jobs}")
         if self.export_stages is not None and (self.estimate or self.import_stages):
             given = "--estimate" if self.estimate else "--import-stages"
-            raise ValueError(
+            raise UserError(
                 f"--export-stages runs nothing else: drop {given} (import, run or estimate with "
                 "one call, export with another)"
             )
         if self.runs is not None and self.runs < 1:
-            raise ValueError(f"runs must be >= 1, got {self.runs}")
+            raise UserError(f"runs must be >= 1, got {self.runs}")
         for flag, folder in (("--out", self.out), ("--export-stages", self.export_stages)):
             if folder is not None and not folder.strip():  # '' would be the current folder
-                raise ValueError(f"{flag} is empty: name a folder")
+                raise UserError(f"{flag} is empty: name a folder")
 
 
 @dataclass(frozen=True)

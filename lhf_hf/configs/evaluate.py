@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 from lhf_hf.envs import SPLIT_PARTS
+from lhf_hf.errors import UserError
 
 from .types import check_types
 
@@ -81,28 +82,28 @@ class EvalConfig:
     def __post_init__(self) -> None:
         check_types(self)
         if self.episodes < 1:
-            raise ValueError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
+            raise UserError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
         if not 1 <= self.rollouts <= MAX_ROLLOUTS:
-            raise ValueError(
+            raise UserError(
                 f"EvalConfig.rollouts must be between 1 and {MAX_ROLLOUTS}, got {self.rollouts!r}"
             )
         if self.context not in CONTEXTS:
-            raise ValueError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
+            raise UserError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.plan_gate != "always" and not self.plan:
-            raise ValueError("EvalConfig.plan_gate is a planning setting: pass plan=True (--plan)")
+            raise UserError("EvalConfig.plan_gate is a planning setting: pass plan=True (--plan)")
         if self.plan_dynamics == "oracle" and not self.plan:
-            raise ValueError(
+            raise UserError(
                 "EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True (--plan)"
             )
         if self.seed < 0:  # numpy's seed sequences take none (its own message names no flag)
-            raise ValueError(f"EvalConfig.seed must be >= 0, got {self.seed!r}")
+            raise UserError(f"EvalConfig.seed must be >= 0, got {self.seed!r}")
         if self.split_seed is not None and self.split_seed < 0:
-            raise ValueError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
+            raise UserError(f"EvalConfig.split_seed must be >= 0, got {self.split_seed!r}")
         if self.tasks not in SPLIT_PARTS:
             try:
                 [int(t) for t in self.tasks.split(",")]
             except ValueError:
-                raise ValueError(
+                raise UserError(
                     "EvalConfig.tasks must be 'test', 'train', 'validation', 'fit' or "
                     f"comma-separated task indices, got {self.tasks!r}"
                 ) from None

@@ -7,6 +7,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from lhf_hf.errors import UserError
+
 from .types import check_types
 
 Strategy = Literal["linear", "softmax", "none", "top-fraction"]
@@ -57,24 +59,24 @@ class FilterConfig:
     def __post_init__(self) -> None:
         check_types(self)
         if self.strategy not in STRATEGIES:
-            raise ValueError(
+            raise UserError(
                 f"FilterConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}"
             )
         if not math.isfinite(self.lam) or not 0 <= self.lam <= MAX_LAM:
-            raise ValueError(
+            raise UserError(
                 f"FilterConfig.lam must be between 0 and {MAX_LAM:g}, got {self.lam!r} (beyond "
                 "~1e3 Stability alone decides U; the paper's sweep tops at 1000)"
             )
         if self.seed < 0:  # numpy's seed sequences take none (its own message names no flag)
-            raise ValueError(f"FilterConfig.seed must be >= 0, got {self.seed!r}")
+            raise UserError(f"FilterConfig.seed must be >= 0, got {self.seed!r}")
         if not math.isfinite(self.alpha) or self.alpha <= 0:
-            raise ValueError(f"FilterConfig.alpha must be > 0, got {self.alpha!r}")
+            raise UserError(f"FilterConfig.alpha must be > 0, got {self.alpha!r}")
         if not 0 < self.fraction <= 1:
-            raise ValueError(f"FilterConfig.fraction must be in (0, 1], got {self.fraction!r}")
+            raise UserError(f"FilterConfig.fraction must be in (0, 1], got {self.fraction!r}")
         if self.r_max is not None and (not math.isfinite(self.r_max) or self.r_max <= 0):
-            raise ValueError(f"FilterConfig.r_max must be a positive return, got {self.r_max!r}")
+            raise UserError(f"FilterConfig.r_max must be a positive return, got {self.r_max!r}")
         if self.scan_order not in SCAN_ORDERS:
-            raise ValueError(
+            raise UserError(
                 f"FilterConfig.scan_order must be one of {SCAN_ORDERS}, got {self.scan_order!r}"
             )
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Literal, get_args
 
 from lhf_hf.constants import OBJECTIVES
+from lhf_hf.errors import UserError
 
 LabelPositions = Literal["all", "query"]
 LABEL_POSITIONS: tuple[str, ...] = get_args(LabelPositions)
@@ -76,11 +77,11 @@ def check_model_fields(
     dynamics_coef: float | None = None,
     preset: str | None = None,
 ) -> None:
-    """Raise ``ValueError("<owner>.<field> ...")`` where a model field breaks a rule.  ``None``
+    """Raise ``UserError("<owner>.<field> ...")`` where a model field breaks a rule.  ``None``
     means "not set here" (e.g. ``TrainConfig``'s context length defaults to the env's)."""
 
     def bad(field: str, value, why: str) -> ValueError:
-        return ValueError(f"{owner}.{field} {why}, got {value!r}")
+        return UserError(f"{owner}.{field} {why}, got {value!r}")
 
     if objective not in OBJECTIVES:
         raise bad("objective", objective, f"must be one of {OBJECTIVES}")

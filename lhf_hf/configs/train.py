@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 from lhf_hf.constants import Objective
+from lhf_hf.errors import UserError
 from lhf_hf.utils.hub import validate_repo_id
 
 from .model import (
@@ -100,7 +101,7 @@ class TrainConfig:
         check_types(self)
 
         def bad(field: str, why: str):
-            return ValueError(f"TrainConfig.{field} {why}, got {getattr(self, field)!r}")
+            return UserError(f"TrainConfig.{field} {why}, got {getattr(self, field)!r}")
 
         # the model's own fields: ICRLConfig's rules (configs/model.py), checked before anything loads
         check_model_fields(
@@ -132,7 +133,7 @@ class TrainConfig:
         if self.attention == "band" and self.label_positions == "query":
             raise bad("label_positions", "must be 'all' with attention='band'")
         if self.resume and self.overwrite:
-            raise ValueError("TrainConfig: resume and overwrite exclude each other")
+            raise UserError("TrainConfig: resume and overwrite exclude each other")
         for name in ("beta1", "beta2"):
             if not 0 <= getattr(self, name) < 1:
                 raise bad(name, "must be in [0, 1)")

@@ -12,6 +12,8 @@ import types
 import typing
 from typing import Any, Literal
 
+from lhf_hf.errors import UserError
+
 
 def _ok(value: Any, hint: Any) -> bool:
     origin = typing.get_origin(hint)
@@ -56,7 +58,7 @@ def _name(hint: Any) -> str:
 
 
 def check_types(config: Any) -> None:
-    """Raise ``ValueError("<Class>.<field> must be <type>, got <value>")`` for the first field of
+    """Raise ``UserError("<Class>.<field> must be <type>, got <value>")`` for the first field of
     dataclass ``config`` whose value does not match its annotation."""
     hints = typing.get_type_hints(type(config))
     for f in dataclasses.fields(config):
@@ -65,7 +67,7 @@ def check_types(config: Any) -> None:
             note = ""
             if isinstance(value, str) and _ok(0.5, hints[f.name]):
                 note = " (in YAML, write a number with a dot, e.g. 1.0e-3: 1e-3 reads as text)"
-            raise ValueError(
+            raise UserError(
                 f"{type(config).__name__}.{f.name} must be {_name(hints[f.name])}, "
                 f"got {value!r}{note}"
             )

@@ -10,6 +10,8 @@ Public surface::
     get_spec(env_id) -> EnvSpec
 """
 
+from lhf_hf.errors import UserError
+
 from . import gridworlds, metaworld_ml1  # noqa: F401  (registers the envs)
 from .gridworld_core import BatchedGridworld, GridworldVariant
 from .gridworld_env import GridworldEnv
@@ -21,7 +23,7 @@ def make_batched(env_id: str, tasks) -> BatchedGridworld:
     spec = get_spec(env_id)  # unknown ids get the error that lists the valid ones
     if spec.batched is None:
         batched = [e for e in list_env_ids() if get_spec(e).batched is not None]
-        raise ValueError(f"{env_id!r} has no batched core; batched envs: {', '.join(batched)}")
+        raise UserError(f"{env_id!r} has no batched core; batched envs: {', '.join(batched)}")
     return spec.batched(tasks)
 
 

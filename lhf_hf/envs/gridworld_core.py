@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lhf_hf.errors import UserError
+
 #: Row/col displacement of the five base actions (DESIGN.md section 2).
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0, 0]], dtype=np.int64)  # (5, 2)
 NUM_ACTIONS = len(MOVES)
@@ -69,15 +71,15 @@ class GridworldVariant:
 
     def __post_init__(self) -> None:
         if self.size < 2:
-            raise ValueError(f"GridworldVariant.size must be >= 2, got {self.size!r}")
+            raise UserError(f"GridworldVariant.size must be >= 2, got {self.size!r}")
         if self.horizon < 1:
-            raise ValueError(f"GridworldVariant.horizon must be >= 1, got {self.horizon!r}")
+            raise UserError(f"GridworldVariant.horizon must be >= 1, got {self.horizon!r}")
         if not all(0 <= c < self.size for c in self.start):
-            raise ValueError(
+            raise UserError(
                 f"GridworldVariant.start {self.start!r} lies outside a {self.size}x{self.size} grid"
             )
         if not 0.0 < self.train_ratio < 1.0:
-            raise ValueError(
+            raise UserError(
                 f"GridworldVariant.train_ratio must be in (0, 1), got {self.train_ratio!r}"
             )
 
@@ -100,7 +102,7 @@ class GridworldVariant:
         if arr.ndim == 0:
             arr = arr[None]
         if arr.ndim != 1 or arr.size == 0:
-            raise ValueError(
+            raise UserError(
                 f"{self.name}: tasks must be a non-empty 1-D sequence of ints, got shape {arr.shape}"
             )
         if arr.dtype.kind not in "iu":
@@ -223,7 +225,7 @@ class BatchedGridworld:
                 raise RuntimeError("reset() all copies once before resetting a subset")
             mask = np.asarray(mask, dtype=bool)
             if mask.shape != (self.num_envs,):
-                raise ValueError(f"reset mask must have shape ({self.num_envs},), got {mask.shape}")
+                raise UserError(f"reset mask must have shape ({self.num_envs},), got {mask.shape}")
             self._cell[mask] = self.variant.start_cell
             self._t[mask] = 0
             self._has_key[mask] = False
@@ -234,7 +236,7 @@ class BatchedGridworld:
         """Validate a batch of discrete actions (B,); invalid ones raise instead of being clipped."""
         a = np.asarray(actions)
         if a.shape != (self.num_envs,):
-            raise ValueError(
+            raise UserError(
                 f"expected {self.num_envs} actions of shape ({self.num_envs},), got shape {a.shape}"
             )
         if a.dtype.kind not in "iu":
@@ -243,7 +245,7 @@ class BatchedGridworld:
             )
         if a.min() < 0 or a.max() >= NUM_ACTIONS:
             bad = a[(a < 0) | (a >= NUM_ACTIONS)]
-            raise ValueError(
+            raise UserError(
                 f"invalid action {int(bad[0])}: actions are integers in 0..{NUM_ACTIONS - 1}"
             )
         return a.astype(np.int64, copy=False)
@@ -287,7 +289,7 @@ class BatchedGridworld:
         not show.
         """
         if self._key is not None:
-            raise ValueError(
+            raise UserError(
                 f"{self.variant.name}: true dynamics from positions alone need a layout without a "
                 "key (the reward depends on the key, which the state does not show)"
             )

@@ -7,6 +7,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from lhf_hf.errors import UserError
+
 from .gridworld_core import NUM_ACTIONS, BatchedGridworld, GridworldVariant
 
 
@@ -26,7 +28,7 @@ class GridworldEnv(gym.Env):
         self, variant: GridworldVariant, task: int, render_mode: str | None = None
     ) -> None:
         if render_mode not in (None, "ansi"):
-            raise ValueError(f"render_mode must be None or 'ansi', got {render_mode!r}")
+            raise UserError(f"render_mode must be None or 'ansi', got {render_mode!r}")
         self.variant = variant
         self.task = int(task)
         self.render_mode = render_mode
@@ -64,7 +66,7 @@ class GridworldEnv(gym.Env):
     def step(self, action):
         a = np.asarray(action)
         if a.shape not in ((), (1,)):
-            raise ValueError(f"expected one discrete action, got shape {a.shape}")
+            raise UserError(f"expected one discrete action, got shape {a.shape}")
         obs, reward, done = self._core.step(a.reshape(1))
         return obs[0], float(reward[0]), False, bool(done[0]), self._info()
 

@@ -17,6 +17,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from lhf_hf.errors import MissingExtraError, UnknownNameError, UserError
+
 from .registry import EnvSpec, register
 
 #: Our env id suffix -> Meta-World v3 task name (the paper's eight ML1 tasks).
@@ -46,7 +48,7 @@ def import_metaworld():
     try:
         import metaworld  # deferred: the optional metaworld extra (MuJoCo)
     except ImportError as exc:  # pragma: no cover - exercised in a subprocess test
-        raise ImportError(_MISSING) from exc
+        raise MissingExtraError(_MISSING) from exc
     return metaworld
 
 
@@ -72,7 +74,7 @@ class MetaWorldML1Env(gym.Env):
         self, task_name: str, task: int, split_seed: int = 0, max_episode_steps: int = HORIZON
     ) -> None:
         if task_name not in ML1_TASKS:
-            raise KeyError(
+            raise UnknownNameError(
                 f"unknown Meta-World ML1 task {task_name!r}; valid: {', '.join(ML1_TASKS)}"
             )
         if not 0 <= task < 2 * NUM_GOALS:
@@ -80,7 +82,7 @@ class MetaWorldML1Env(gym.Env):
                 f"metaworld-{task_name}: task index {task} out of range; valid tasks are 0..{2 * NUM_GOALS - 1}"
             )
         if max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps!r}")
+            raise UserError(f"max_episode_steps must be >= 1, got {max_episode_steps!r}")
         self.task_name = task_name
         self.task = int(task)
         self.split_seed = int(split_seed)
@@ -122,9 +124,9 @@ class MetaWorldML1Env(gym.Env):
             raise RuntimeError("call reset() before step() (the episode ended or never started)")
         a = np.asarray(action, dtype=np.float32)
         if a.shape != (ACT_DIM,):
-            raise ValueError(f"expected an action of shape ({ACT_DIM},), got {a.shape}")
+            raise UserError(f"expected an action of shape ({ACT_DIM},), got {a.shape}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains non-finite values: {a}")
+            raise UserError(f"action contains non-finite values: {a}")
         executed = np.clip(a, -1.0, 1.0)
         obs, reward, _, _, info = self._env.step(executed)
         self._t += 1

@@ -14,6 +14,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from lhf_hf.errors import OutOfRangeError, UnknownNameError, UserError
+
 
 @dataclass(frozen=True)
 class EnvSpec:
@@ -89,28 +91,28 @@ class EnvSpec:
             len(self.reward_values) < 2
             or any(b <= a for a, b in zip(self.reward_values, self.reward_values[1:], strict=False))
         ):
-            raise ValueError(
+            raise UserError(
                 f"EnvSpec.reward_values must be >= 2 increasing values, got {self.reward_values!r}"
             )
         if not self.env_id or self.env_id != self.env_id.strip().lower():
-            raise ValueError(
+            raise UserError(
                 f"EnvSpec.env_id must be a non-empty lower-case id, got {self.env_id!r}"
             )
         if not self.family:
-            raise ValueError("EnvSpec.family must be a non-empty label")
+            raise UserError("EnvSpec.family must be a non-empty label")
         if len(self.ppo) != 3 or min(self.ppo) < 1:
-            raise ValueError(
+            raise UserError(
                 f"EnvSpec.ppo must be (n_steps, batch_size, n_epochs) >= 1, got {self.ppo!r}"
             )
         if self.horizon < 1:
-            raise ValueError(f"EnvSpec.horizon must be >= 1, got {self.horizon!r}")
+            raise UserError(f"EnvSpec.horizon must be >= 1, got {self.horizon!r}")
         if self.context_length < 1 or self.plan_horizon < 1:
-            raise ValueError(
+            raise UserError(
                 f"EnvSpec.context_length and plan_horizon must be >= 1, got "
                 f"{self.context_length!r} and {self.plan_horizon!r}"
             )
         if not 0 < self.num_train_tasks < self.num_tasks:
-            raise ValueError(
+            raise UserError(
                 f"EnvSpec.num_train_tasks must be in (0, num_tasks={self.num_tasks}), got {self.num_train_tasks!r}"
             )
 
@@ -145,7 +147,7 @@ class EnvSpec:
         if isinstance(task, bool) or not isinstance(task, int | np.integer):
             raise TypeError(f"{self.env_id}: task must be an int index, got {task!r}")
         if not 0 <= int(task) < self.num_tasks:
-            raise IndexError(
+            raise OutOfRangeError(
                 f"{self.env_id}: task index {task} out of range; valid tasks are 0..{self.num_tasks - 1}"
             )
         return int(task)
@@ -197,7 +199,7 @@ _REGISTRY: dict[str, EnvSpec] = {}
 def register(spec: EnvSpec) -> EnvSpec:
     """Add ``spec`` to the registry; ids are unique."""
     if spec.env_id in _REGISTRY:
-        raise ValueError(f"environment {spec.env_id!r} is already registered")
+        raise UserError(f"environment {spec.env_id!r} is already registered")
     _REGISTRY[spec.env_id] = spec
     return spec
 
@@ -212,7 +214,9 @@ def get_spec(env_id: str) -> EnvSpec:
     try:
         return _REGISTRY[env_id]
     except (KeyError, TypeError):
-        raise KeyError(f"unknown env id {env_id!r}; valid ids: {', '.join(_REGISTRY)}") from None
+        raise UnknownNameError(
+            f"unknown env id {env_id!r}; valid ids: {', '.join(_REGISTRY)}"
+        ) from None
 
 
 def make(env_id: str, task: int, *, split_seed: int = 0, **kwargs) -> gym.Env:
@@ -243,7 +247,7 @@ def split_part(env_id: str, part: str, seed: int = 0) -> list[int]:
     if part in ("fit", "validation"):
         fit, validation = get_spec(env_id).validation_split(int(seed))
         return fit if part == "fit" else validation
-    raise ValueError(f"unknown split part {part!r}: use one of {', '.join(SPLIT_PARTS)}")
+    raise UserError(f"unknown split part {part!r}: use one of {', '.join(SPLIT_PARTS)}")
 
 
 #: the named parts of a split (``split_part``)

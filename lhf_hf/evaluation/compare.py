@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import changed_since_written, output_folder
 
@@ -29,16 +30,16 @@ def load_results(path: str) -> dict:
     p = Path(path)
     f = p / RESULTS_FILE if p.is_dir() else p
     if not f.exists():
-        raise FileNotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
+        raise NotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
     if changed_since_written(f.parent, [f.name]):  # a hand-edited result is not a result
-        raise ValueError(
+        raise UserError(
             f"compare: {f} changed since `lhf evaluate` wrote it (its folder's manifest says "
             "otherwise): not compared; `lhf verify` shows what changed"
         )
     try:
         r = read_json(f)
     except ValueError as exc:
-        raise ValueError(f"compare: {f}: not readable JSON ({exc})") from None
+        raise UserError(f"compare: {f}: not readable JSON ({exc})") from None
     # what compare reads, checked here so that a damaged file is named, not a KeyError
     problem = None
     if not isinstance(r, dict):
@@ -59,7 +60,7 @@ def load_results(path: str) -> dict:
         if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 1:
             problem = f"config.rollouts must be an integer >= 1, got {rollouts!r}"
     if problem:
-        raise ValueError(f"compare: {f}: {problem} (not an `lhf evaluate` result)")
+        raise UserError(f"compare: {f}: {problem} (not an `lhf evaluate` result)")
     r["_file"] = str(f.resolve())  # the run's identity: a folder and its results file are one run
     return r
 
@@ -78,7 +79,7 @@ def backbone_of(r: dict) -> str:
 
 def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
     if not paths:
-        raise ValueError(f"compare: no {side} evaluation runs given")
+        raise UserError(f"compare: no {side} evaluation runs given")
     out: dict[str, list[dict]] = {}
     for p in paths:
         r = load_results(p)
@@ -129,7 +130,7 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
     for r in runs:
         f = r["_file"]
         if f in seen:
-            raise ValueError(
+            raise UserError(
                 f"compare: {r['_path']} and {seen[f]} are the same evaluation run ({f}); each run "
                 "may be given once, on one side"
             )
@@ -137,7 +138,7 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
     protocols = {_protocol(r) for r in runs}
     if len(protocols) != 1:
         modes = sorted({f"{r['config'].get('context', 'cache')} ({r['_path']})" for r in runs})
-        raise ValueError(f"compare: the runs use different context protocols: {modes}")
+        raise UserError(f"compare: the runs use different context protocols: {modes}")
     for backbone in sorted(base):
         b, f = base[backbone], filt[backbone]
         settings: dict[tuple, list[str]] = {}
@@ -151,20 +152,20 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
                 f"{', '.join(f'{k}={v!r}' for k, v in key if k in keys)} ({', '.join(paths)})"
                 for key, paths in settings.items()
             )
-            raise ValueError(
+            raise UserError(
                 f"compare: {backbone} runs were evaluated with different settings: {shown}"
             )
         if len(b) == len(f):
             for rb, rf in zip(b, f, strict=True):
                 if _tasks_key(rb) != _tasks_key(rf):
-                    raise ValueError(
+                    raise UserError(
                         f"compare: {backbone} runs paired in the given order differ in split or "
                         f"tasks: {rb['_path']} (split {rb.get('split_seed')}, tasks "
                         f"{rb.get('tasks')}) vs {rf['_path']} (split {rf.get('split_seed')}, tasks "
                         f"{rf.get('tasks')}); give the runs in the same order on both sides"
                     )
         elif {_tasks_key(r) for r in b} != {_tasks_key(r) for r in f}:
-            raise ValueError(
+            raise UserError(
                 f"compare: {backbone} baseline and LHF runs are on different splits or task sets"
             )
 
@@ -189,12 +190,12 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
     runs = [r for rs in (*base.values(), *filt.values()) for r in rs]
     envs = {r["env_id"] for r in runs}
     if len(envs) != 1:
-        raise ValueError(f"compare: the runs are on different envs {sorted(envs)}")
+        raise UserError(f"compare: the runs are on different envs {sorted(envs)}")
     episodes = {len(r["mean_curve"]) for r in runs}
     if len(episodes) != 1:
-        raise ValueError(f"compare: the runs have different numbers of episodes {sorted(episodes)}")
+        raise UserError(f"compare: the runs have different numbers of episodes {sorted(episodes)}")
     if set(base) != set(filt):
-        raise ValueError(
+        raise UserError(
             f"compare: backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
         )
     _check_comparable(runs, base, filt)

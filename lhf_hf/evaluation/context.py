@@ -32,6 +32,7 @@ from __future__ import annotations
 import torch
 from transformers import DynamicCache
 
+from lhf_hf.errors import UserError
 from lhf_hf.modeling.attention import band_mask
 
 from .decode import LeanLlama, supported
@@ -62,15 +63,15 @@ class Context:
         if mode == "auto":
             mode = trained_mode(model)
         if mode not in MODES:
-            raise ValueError(f"unknown context mode {mode!r}: one of {MODES}")
+            raise UserError(f"unknown context mode {mode!r}: one of {MODES}")
         if engine not in ENGINES:
-            raise ValueError(f"unknown context engine {engine!r}: one of {ENGINES}")
+            raise UserError(f"unknown context engine {engine!r}: one of {ENGINES}")
         self.model = model
         self.mode = mode
         # the cached step's forward: the lean exact decoder (``decode.py``) when the model allows it
         why_not = supported(model)
         if engine == "lean" and why_not is not None:
-            raise ValueError(f"engine='lean' cannot run this model: {why_not}")
+            raise UserError(f"engine='lean' cannot run this model: {why_not}")
         use_lean = mode == "cache" and engine != "hf" and why_not is None
         self.engine = "lean" if use_lean else "hf"
         self.lean = LeanLlama(model) if use_lean else None

@@ -36,6 +36,8 @@ import numpy as np
 import torch
 from transformers import LlamaModel
 
+from lhf_hf.errors import UserError
+
 
 def supported(model) -> str | None:
     """``None`` when ``model``'s backbone can run here, else the reason it cannot."""
@@ -130,7 +132,7 @@ class LeanLlama:
     def __init__(self, model, capacity: int = 512) -> None:
         why = supported(model)
         if why is not None:
-            raise ValueError(f"the lean decoder does not support this model: {why}")
+            raise UserError(f"the lean decoder does not support this model: {why}")
         bb = model.backbone
         c = bb.config
         self.heads, self.kv_heads = c.num_attention_heads, c.num_key_value_heads

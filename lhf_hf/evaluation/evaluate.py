@@ -10,6 +10,7 @@ from transformers import AutoConfig
 
 from lhf_hf.configs.evaluate import EvalConfig
 from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
+from lhf_hf.errors import UserError
 from lhf_hf.modeling import load_model
 from lhf_hf.training.card import MODEL_EVALS_FILE, evaluation_problems, write_model_card
 from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
@@ -88,25 +89,25 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         model_dir, ["config.json", "model.safetensors", TRAIN_CONFIG_FILE]
     )
     if changed:  # its record of the training tasks (config.json) decides what is unseen
-        raise ValueError(
+        raise UserError(
             f"{cfg.model}: {', '.join(changed)} changed since `lhf train` wrote it (its manifest "
             "says otherwise): not evaluated; `lhf verify` shows what changed"
         )
     evals_path = model_dir / MODEL_EVALS_FILE
     if evals_path.is_file() and not is_hub_snapshot(model_dir):  # before the rollouts, not after
         for problem in evaluation_problems(read_json(evals_path)):
-            raise ValueError(f"{evals_path} {problem}: the file is damaged (not evaluated)")
+            raise UserError(f"{evals_path} {problem}: the file is damaged (not evaluated)")
     model = load_model(str(model_dir))
     mc = model.config
     env_id = cfg.env_id or mc.env_id
     if env_id is None:
-        raise ValueError(f"{cfg.model} does not name its env: pass --env")
+        raise UserError(f"{cfg.model} does not name its env: pass --env")
     spec = get_spec(env_id)
     check_model_env(mc, spec)
     if mc.env_id and env_id != mc.env_id:
-        raise ValueError(f"the model was trained on {mc.env_id!r}, not on {env_id!r}")
+        raise UserError(f"the model was trained on {mc.env_id!r}, not on {env_id!r}")
     if cfg.plan and mc.objective != "dicp":
-        raise ValueError(
+        raise UserError(
             f"--plan needs a model with dynamics heads (objective dicp); {cfg.model} is {mc.objective!r}"
         )
     train_cfg_path = model_dir / TRAIN_CONFIG_FILE
@@ -114,7 +115,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
     recorded = ((train_cfg or {}).get("dataset") or {}).get("tasks")
     if recorded is not None and mc.train_tasks is not None and sorted(recorded) != mc.train_tasks:
         # two records of one training disagree: one was edited (a folder without a manifest)
-        raise ValueError(
+        raise UserError(
             f"{cfg.model}: config.json's train_tasks ({len(mc.train_tasks)} tasks) disagree with "
             f"{TRAIN_CONFIG_FILE}'s dataset tasks ({len(recorded)}): one was edited; not evaluated"
         )

@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from lhf_hf.errors import UserError
+
 from .context import Context
 
 
@@ -97,7 +99,7 @@ def beam_search(
         diagnosis can hold them against the true dynamics.
     """
     if order not in ("sample", "argmax"):
-        raise ValueError(f"order must be 'sample' or 'argmax', got {order!r}")
+        raise UserError(f"order must be 'sample' or 'argmax', got {order!r}")
     B, A = logits.shape
     tree = _Tree(model, context)
     b_idx = torch.arange(B)[:, None]

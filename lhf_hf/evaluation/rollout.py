@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from lhf_hf.errors import UserError
+
 from .context import Context
 from .planning import beam_search, greedy_search
 from .tokens import StepTokens
@@ -86,15 +88,15 @@ def rollout(
     model.eval()
     dicp = c.objective == "dicp"
     if plan and not dicp:
-        raise ValueError(
+        raise UserError(
             f"planning needs the dynamics heads of a DICP model; this model's objective is {c.objective!r}"
         )
     if plan_dynamics not in ("model", "oracle"):
-        raise ValueError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
+        raise UserError(f"plan_dynamics must be 'model' or 'oracle', got {plan_dynamics!r}")
     if plan_gate not in ("always", "reward_seen"):
-        raise ValueError(f"plan_gate must be 'always' or 'reward_seen', got {plan_gate!r}")
+        raise UserError(f"plan_gate must be 'always' or 'reward_seen', got {plan_gate!r}")
     if plan and plan_gate != "always" and not c.discrete_actions:
-        raise ValueError(
+        raise UserError(
             "plan_gate='reward_seen' gates the beam search of discrete-action envs; continuous "
             "actions plan with the greedy search, whose dense rewards need no gate"
         )

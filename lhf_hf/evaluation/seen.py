@@ -10,9 +10,10 @@ environments"); a return on a task the model trained on measures memory, not in-
 from __future__ import annotations
 
 from lhf_hf.envs.registry import EnvSpec
+from lhf_hf.errors import UserError
 
 
-class SeenTasksError(ValueError):
+class SeenTasksError(UserError):
     """An evaluation asked for tasks the model trained on, without ``allow_seen``."""
 
 

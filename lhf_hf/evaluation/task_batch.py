@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from lhf_hf.envs import get_spec, make, make_batched
+from lhf_hf.errors import UserError
 
 
 class BatchedTasks:
@@ -52,7 +53,7 @@ class GymTasks:
         self.has_success = spec.reports_success
 
     def imagine(self, states, actions):
-        raise ValueError(
+        raise UserError(
             "planning with the true dynamics needs an env with a batched core (the gridworlds)"
         )
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from lhf_hf.errors import UserError
+
 
 class StepTokens:
     """Token embeddings (B, 1, D) of a frozen model (weights copied at construction)."""
@@ -76,7 +78,7 @@ class StepTokens:
     def query(self, states: np.ndarray, actions: np.ndarray) -> torch.Tensor:
         """DICP query-action tokens (B, 1, D) for the action taken in each state."""
         if self.w_q is None:
-            raise ValueError("query-action tokens exist for DICP models only")
+            raise UserError("query-action tokens exist for DICP models only")
         B, sf = len(states), self.sf
         feats = np.zeros((B, sf + self.A), np.float32)  # [s, a]
         self._states(feats[:, :sf], np.asarray(states))

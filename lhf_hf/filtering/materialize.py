@@ -12,6 +12,7 @@ import pyarrow as pa
 from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
+from lhf_hf.errors import UserError
 from lhf_hf.histories.derive import write_derived
 
 from .select import Selection, source_mismatch
@@ -19,7 +20,7 @@ from .select import Selection, source_mismatch
 
 def _check_source(ds, selection: Selection) -> None:
     for problem in source_mismatch(ds, selection):
-        raise ValueError(problem)
+        raise UserError(problem)
 
 
 def apply_selection(ds, selection: Selection) -> datasets.Dataset:
@@ -84,7 +85,7 @@ def materialize(
         rows = hist[hist[C.TASK_INDEX] == task].sort_values(C.HISTORY_IN_TASK)
         reps = np.array([counts.get(int(h), 0) for h in rows[C.HISTORY_INDEX]], dtype=np.int64)
         if reps.sum() != th.num_histories:
-            raise ValueError(
+            raise UserError(
                 f"task {task}: selection counts sum to {reps.sum()}, not {th.num_histories}"
             )
         take = np.repeat(np.arange(th.num_histories), reps)  # (H,) source history per new history

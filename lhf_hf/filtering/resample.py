@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lhf_hf.errors import UserError
+
 from .sampling import sampling_probabilities
 
 
@@ -33,7 +35,7 @@ def algorithm1(
     n = p.size
     target = n if target is None else int(target)
     if p.max() <= 0:
-        raise ValueError("every sampling probability is 0: Algorithm 1 would never finish")
+        raise UserError("every sampling probability is 0: Algorithm 1 would never finish")
     counts = np.zeros(n, dtype=np.int64)
     p_scan = p[order]
     total = 0

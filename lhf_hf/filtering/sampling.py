@@ -13,6 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lhf_hf.errors import UserError
+
 
 def _minmax(x: np.ndarray) -> np.ndarray:
     lo, hi = x.min(), x.max()
@@ -51,14 +53,14 @@ SAMPLING: dict[str, Callable[[np.ndarray, float], np.ndarray]] = {
 def sampling_probabilities(scores, strategy: str = "linear", alpha: float = 0.125) -> np.ndarray:
     """P for one task's histories from their scores U (n,)."""
     if strategy not in SAMPLING:
-        raise ValueError(
+        raise UserError(
             f"unknown sampling strategy {strategy!r}; choose one of {', '.join(SAMPLING)}"
         )
     if not np.isfinite(alpha) or alpha <= 0:
-        raise ValueError(f"alpha (softmax temperature) must be > 0, got {alpha!r}")
+        raise UserError(f"alpha (softmax temperature) must be > 0, got {alpha!r}")
     u = np.asarray(scores, dtype=np.float64)
     if u.ndim != 1 or u.size == 0:
-        raise ValueError(f"scores must be a non-empty 1-D array, got shape {u.shape}")
+        raise UserError(f"scores must be a non-empty 1-D array, got shape {u.shape}")
     if not np.all(np.isfinite(u)):
-        raise ValueError("scores contain NaN or infinite values")
+        raise UserError("scores contain NaN or infinite values")
     return SAMPLING[strategy](u, alpha)

@@ -16,15 +16,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from lhf_hf.errors import UserError
+
 
 def _check(returns, r_max: float, name: str = "history") -> np.ndarray:
     r = np.asarray(returns, dtype=np.float64)
     if r.ndim != 1:
-        raise ValueError(f"{name}: returns must be a 1-D sequence, got shape {r.shape}")
+        raise UserError(f"{name}: returns must be a 1-D sequence, got shape {r.shape}")
     if r.size == 0:
-        raise ValueError(f"{name}: empty list of episode returns")
+        raise UserError(f"{name}: empty list of episode returns")
     if not np.all(np.isfinite(r)):
-        raise ValueError(f"{name}: returns contain NaN or infinite values")
+        raise UserError(f"{name}: returns contain NaN or infinite values")
     _check_r_max(r_max)
     return r
 
@@ -32,7 +34,7 @@ def _check(returns, r_max: float, name: str = "history") -> np.ndarray:
 def _check_r_max(r_max) -> None:
     r = np.asarray(r_max, dtype=np.float64)
     if not np.all(np.isfinite(r)) or np.any(r <= 0):
-        raise ValueError(f"r_max must be a positive finite return, got {r_max!r}")
+        raise UserError(f"r_max must be a positive finite return, got {r_max!r}")
 
 
 def improvement(returns: Sequence[float], r_max: float) -> float:
@@ -57,7 +59,7 @@ def unified_score(returns: Sequence[float], r_max: float, lam: float = 1.0) -> f
 
 def _check_lam(lam: float) -> None:
     if not np.isfinite(lam) or lam < 0:
-        raise ValueError(f"lambda must be a finite value >= 0, got {lam!r}")
+        raise UserError(f"lambda must be a finite value >= 0, got {lam!r}")
 
 
 def score_arrays(returns: np.ndarray, r_max: np.ndarray, lam: float = 1.0) -> dict[str, np.ndarray]:

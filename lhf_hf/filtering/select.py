@@ -21,6 +21,7 @@ from datasets.table import InMemoryTable
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
 from lhf_hf.envs import get_spec
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.hub import resolve
 from lhf_hf.utils.io import read_json, write_json_atomic, write_parquet_atomic
 from lhf_hf.utils.versions import library_versions
@@ -41,14 +42,14 @@ def _r_max_lookup(r_max, env_id: str | None) -> dict | float:
     if r_max is not None:
         return float(r_max)
     if env_id is None:
-        raise ValueError(
+        raise UserError(
             "r_max is needed: pass r_max=... (a return, or {task: return}) or env_id=... for "
             "an env whose optimal returns are known (gridworlds)"
         )
 
     spec = get_spec(env_id)
     if spec.optimal_returns is None:
-        raise ValueError(
+        raise UserError(
             f"{env_id} has no known optimal return: pass r_max (e.g. --r-max) for its scores"
         )
     return {t: float(v) for t, v in enumerate(spec.optimal_returns())}
@@ -61,7 +62,7 @@ def _score_batch(batch: pa.Table, lam: float, r_max) -> pa.Table:
     returns = batch.column(C.RETURNS).combine_chunks()
     lengths = pa.compute.list_value_length(returns).fill_null(0).to_numpy(zero_copy_only=False)
     if np.any(lengths == 0):
-        raise ValueError(
+        raise UserError(
             f"history {hist[int(np.argmax(lengths == 0))]}: empty list of episode returns"
         )
     if isinstance(r_max, float):
@@ -70,7 +71,7 @@ def _score_batch(batch: pa.Table, lam: float, r_max) -> pa.Table:
         rmax = np.array([r_max.get(int(t), np.nan) for t in tasks])
     if np.any(~np.isfinite(rmax)):
         i = int(np.argmax(~np.isfinite(rmax)))
-        raise ValueError(f"history {hist[i]}: no r_max for task {tasks[i]}")
+        raise UserError(f"history {hist[i]}: no r_max for task {tasks[i]}")
     values = (
         returns.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
     )  # all returns, concatenated
@@ -81,7 +82,7 @@ def _score_batch(batch: pa.Table, lam: float, r_max) -> pa.Table:
         r = values[offsets[rows, None] + np.arange(length)]  # (n, E)
         bad = ~np.isfinite(r).all(1)
         if bad.any():
-            raise ValueError(
+            raise UserError(
                 f"history {hist[rows[np.argmax(bad)]]}: returns contain NaN or infinite values"
             )
         s = score_arrays(r, rmax[rows], lam)
@@ -100,11 +101,11 @@ def score_histories(
         c for c in (C.TASK_INDEX, C.HISTORY_INDEX, C.RETURNS) if c not in histories.column_names
     ]
     if missing:
-        raise ValueError(
+        raise UserError(
             f"the histories table lacks the columns {missing} (has {histories.column_names})"
         )
     if histories.num_rows == 0:
-        raise ValueError("the histories table is empty")
+        raise UserError("the histories table is empty")
     lookup = _r_max_lookup(r_max, env_id)
     # Arrow batches: the returns lists are read as one flat array, no per-history Python lists.
     return (
@@ -260,7 +261,7 @@ def load_selection(path: str | Path) -> Selection:
     path = resolve(path, "dataset", "selection")
     for f in (SCORES_FILE, CONFIG_FILE):
         if not (path / f).exists():
-            raise FileNotFoundError(
+            raise NotFoundError(
                 f"{path} is not a selection folder: {f} is missing (made by `lhf filter`)"
             )
     meta = read_json(path / CONFIG_FILE)

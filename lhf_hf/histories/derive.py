@@ -13,6 +13,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from lhf_hf.errors import UserError
 from lhf_hf.utils.io import write_bytes_atomic
 from lhf_hf.utils.versions import library_versions
 
@@ -49,7 +50,7 @@ def write_derived(
     # longer hash to it (or whose returns disagree with its rewards) would pass that on as sound.
     problems = check_dataset(source, full=True)
     if problems:
-        raise ValueError(
+        raise UserError(
             f"the source dataset {source.root} fails `lhf verify` ({'; '.join(problems[:3])}): "
             "nothing derived from it"
         )
@@ -128,13 +129,13 @@ def derive_half(
 ) -> HistoryDataset:
     """Write the first ``fraction`` of every history of ``src`` (whole episodes) to ``out``."""
     if not 0.0 < fraction < 1.0:
-        raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
+        raise UserError(f"fraction must be in (0, 1), got {fraction!r}")
     source = load_histories(src)
     horizon = source.horizon
     steps = source.lhf["steps_per_history"]
     new_steps = int(steps * fraction) // horizon * horizon  # whole episodes only
     if new_steps < horizon:
-        raise ValueError(
+        raise UserError(
             f"{fraction:.0%} of {steps} steps is less than one episode ({horizon} steps)"
         )
     derived = {

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
+from lhf_hf.errors import NotFoundError, UnknownNameError, UserError
 from lhf_hf.utils.hub import resolve, source_of
 from lhf_hf.utils.io import read_json
 
@@ -39,7 +40,7 @@ REQUIRED_HISTORY_COLUMNS = (
 )
 
 
-class DatasetFormatError(ValueError):
+class DatasetFormatError(UserError):
     """The folder is not a (complete) learning-history dataset in our layout."""
 
 
@@ -62,7 +63,7 @@ class HistoryDataset:
         self.source = str(self.root.resolve())
         info_file = self.root / C.INFO_PATH
         if not self.root.is_dir():
-            raise FileNotFoundError(f"no dataset folder at {self.root}")
+            raise NotFoundError(f"no dataset folder at {self.root}")
         if not info_file.exists():
             hint = (
                 " (an unfinished collection: run it again with --resume)"
@@ -184,7 +185,7 @@ class HistoryDataset:
     def task_frames(self, task_index: int, columns: list[str] | None = None) -> pa.Table:
         pos = self.task_positions().get(int(task_index))
         if pos is None:
-            raise KeyError(
+            raise UnknownNameError(
                 f"task {task_index} is not in {self.root} (tasks: {self.lhf['tasks'][:10]}...)"
             )
         return pq.read_table(self.data_files()[pos], columns=columns)

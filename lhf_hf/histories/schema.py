@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow as pa
 
 from lhf_hf import constants as C
+from lhf_hf.errors import UserError
 
 
 @dataclass
@@ -55,29 +56,29 @@ class TaskHistories:
         """Raise ``ValueError`` when shapes, episode ends or values are inconsistent."""
         H, T = self.rewards.shape
         if H == 0 or T == 0:
-            raise ValueError(f"task {self.task}: empty histories (shape {self.rewards.shape})")
+            raise UserError(f"task {self.task}: empty histories (shape {self.rewards.shape})")
         if T % horizon:
-            raise ValueError(
+            raise UserError(
                 f"task {self.task}: {T} steps is not a multiple of the horizon {horizon}"
             )
         for name in ("obs", "actions", "next_obs", "dones", "optimal_actions", "success"):
             arr = getattr(self, name)
             if arr is not None and arr.shape[:2] != (H, T):
-                raise ValueError(
+                raise UserError(
                     f"task {self.task}: {name} has shape {arr.shape}, expected ({H}, {T}, ...)"
                 )
         if self.obs.shape != self.next_obs.shape:
-            raise ValueError(
+            raise UserError(
                 f"task {self.task}: obs {self.obs.shape} and next_obs {self.next_obs.shape} differ"
             )
         if len(self.learner) != H or self.learner_index.shape != (H,) or self.seeds.shape != (H,):
-            raise ValueError(f"task {self.task}: learner/learner_index/seeds must have {H} entries")
+            raise UserError(f"task {self.task}: learner/learner_index/seeds must have {H} entries")
         if not np.all(np.isfinite(self.rewards)):
-            raise ValueError(f"task {self.task}: non-finite rewards")
+            raise UserError(f"task {self.task}: non-finite rewards")
         expected = np.zeros(T, dtype=bool)
         expected[horizon - 1 :: horizon] = True
         if not np.array_equal(self.dones, np.broadcast_to(expected, (H, T))):
-            raise ValueError(f"task {self.task}: episodes must end exactly every {horizon} steps")
+            raise UserError(f"task {self.task}: episodes must end exactly every {horizon} steps")
 
     def slice_steps(self, stop: int) -> TaskHistories:
         """The first ``stop`` transitions of every history (a view)."""
@@ -212,7 +213,7 @@ def task_histories_from_frames(
     H = hist.num_rows
     N = frames.num_rows
     if H == 0 or N % H:
-        raise ValueError(f"{N} frames cannot be split into {H} equal histories")
+        raise UserError(f"{N} frames cannot be split into {H} equal histories")
     T = N // H
 
     def arr(name: str) -> np.ndarray | None:

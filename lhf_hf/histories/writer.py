@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
+from lhf_hf.errors import UserRuntimeError
 from lhf_hf.utils.io import (
     parquet_num_rows,
     read_json,
@@ -222,7 +223,7 @@ def finalize(
     frames_per_task = histories * steps
     missing = [p for p in range(len(tasks)) if not task_done(root, p, frames_per_task)]
     if missing:
-        raise RuntimeError(
+        raise UserRuntimeError(
             f"{len(missing)} of {len(tasks)} tasks are not written yet (first: task "
             f"{tasks[missing[0]]}); run the collection again with --resume"
         )

@@ -20,6 +20,7 @@ from lhf_hf.configs.model import (
     STATE_ENCODINGS,
     check_model_fields,
 )
+from lhf_hf.errors import UserError
 
 
 @strict
@@ -115,7 +116,7 @@ class ICRLConfig(LlamaConfig):
 
     def __post_init__(self, **kwargs):
         def bad(field: str, why: str):
-            return ValueError(f"ICRLConfig.{field} {why}, got {getattr(self, field)!r}")
+            return UserError(f"ICRLConfig.{field} {why}, got {getattr(self, field)!r}")
 
         check_model_fields(
             "ICRLConfig",
@@ -190,5 +191,5 @@ class ICRLConfig(LlamaConfig):
 def icrl_config(preset: str = "paper", **fields) -> ICRLConfig:
     """An ``ICRLConfig`` with the backbone sizes of ``preset`` and the given fields."""
     if preset not in PRESETS:
-        raise ValueError(f"unknown model preset {preset!r}; choose one of {sorted(PRESETS)}")
+        raise UserError(f"unknown model preset {preset!r}; choose one of {sorted(PRESETS)}")
     return ICRLConfig(**{**PRESETS[preset], **fields})

@@ -7,6 +7,7 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 from transformers import AutoConfig, AutoModel
 
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.hub import resolve
 
 from . import modeling_icrl  # noqa: F401  (registers lhf_icrl with AutoConfig / AutoModel)
@@ -17,33 +18,31 @@ def load_model(path: str) -> ICRLModel:
     """The checkpoint at ``path`` (a folder, or a Hub model repo id), in eval mode."""
     p = resolve(path, "model", "model checkpoint")
     if not (p / "config.json").exists():
-        raise FileNotFoundError(
+        raise NotFoundError(
             f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
         )
     try:
         config = AutoConfig.from_pretrained(p)
     except (OSError, ValueError, TypeError) as exc:  # transformers: OSError for malformed JSON
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ValueError(f"{p / 'config.json'} is not a readable model config ({why})") from None
+        raise UserError(f"{p / 'config.json'} is not a readable model config ({why})") from None
     if getattr(config, "model_type", None) != "lhf_icrl":
-        raise ValueError(
-            f"{path} holds a {config.model_type!r} model, not an lhf_icrl (ICRL) model"
-        )
+        raise UserError(f"{path} holds a {config.model_type!r} model, not an lhf_icrl (ICRL) model")
     if not any(p.glob("model*.safetensors")):
         if any(p.glob("pytorch_model*.bin")):
-            raise ValueError(
+            raise UserError(
                 f"{path} holds pickled weights (pytorch_model.bin) only: lhf loads safetensors "
                 "alone (unpickling can run code); save the model with save_pretrained(...) "
                 "in a Python process you trust to get model.safetensors"
             )
-        raise FileNotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
+        raise NotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
     check_weights(p, config)
     model = AutoModel.from_pretrained(p, use_safetensors=True).eval()
     bad = [
         n for n, t in model.state_dict().items() if t.is_floating_point() and not t.isfinite().all()
     ]
     if bad:  # a diverged training: its actions would be NaN draws, not a policy
-        raise ValueError(
+        raise UserError(
             f"{path}: {len(bad)} weight tensors hold NaN or infinite values (e.g. {bad[0]}): "
             "not a usable model"
         )
@@ -66,7 +65,7 @@ def check_weights(folder: Path, config) -> None:
                 for k in f.keys():  # noqa: SIM118 (safe_open is not a mapping)
                     found[k] = tuple(f.get_slice(k).get_shape())
         except (SafetensorError, OSError, ValueError) as e:
-            raise ValueError(f"{file}: not a readable safetensors file ({e})") from None
+            raise UserError(f"{file}: not a readable safetensors file ({e})") from None
     missing = sorted(set(expected) - set(found))
     unexpected = sorted(set(found) - set(expected))
     misshaped = sorted(
@@ -80,7 +79,7 @@ def check_weights(folder: Path, config) -> None:
         *([f"mis-shaped {_names(misshaped)}"] if misshaped else []),
     ]
     if problems:
-        raise ValueError(
+        raise UserError(
             f"{folder}: the weights do not fit its config.json ({config.objective}, "
             f"{config.num_hidden_layers} layers, hidden {config.hidden_size}): "
             + "; ".join(problems)

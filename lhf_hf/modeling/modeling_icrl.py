@@ -31,6 +31,8 @@ from transformers import AutoConfig, AutoModel, LlamaModel
 from transformers.modeling_outputs import ModelOutput
 from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
 
+from lhf_hf.errors import UserError
+
 from . import train_attention
 from .attention import band_mask, token_windows
 from .configuration_icrl import ICRLConfig
@@ -248,7 +250,7 @@ class ICRLModel(ICRLPreTrainedModel):
         idx = (rewards.to(torch.float64)[..., None] - values).abs().argmin(-1)  # (...,)
         off = (rewards.to(torch.float64) - values[idx]).abs() > 1e-6
         if off.any():
-            raise ValueError(
+            raise UserError(
                 f"reward {float(rewards[off][0])} is not one of the model's reward values "
                 f"{self.config.reward_values}"
             )
@@ -289,7 +291,6 @@ class ICRLModel(ICRLPreTrainedModel):
         backbone_cache=None,
         position_ids: torch.Tensor | None = None,
         use_cache: bool | None = None,
-        **kwargs,
     ) -> ICRLOutput:
         r"""Run a window of ``T`` transitions.
 
@@ -316,7 +317,7 @@ class ICRLModel(ICRLPreTrainedModel):
         dicp = c.objective == "dicp"
         if dicp:
             if actions is None:
-                raise ValueError("DICP's forward needs `actions` (the query-action tokens' input)")
+                raise UserError("DICP's forward needs `actions` (the query-action tokens' input)")
             qa = self.embed_query_actions(states, actions)  # (B, T, D)
             tokens = torch.stack([tokens, qa], dim=2).flatten(1, 2)  # (B, T, 2, D) -> (B, 2T, D)
         mask = None

@@ -39,6 +39,7 @@ from urllib.parse import quote
 
 import yaml
 
+from lhf_hf.errors import UserError
 from lhf_hf.utils.io import read_json
 
 from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
@@ -98,20 +99,20 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
     malformed or no longer valid."""
     rec = summary.get("experiment")
     if not isinstance(rec, dict):
-        raise ValueError("no recorded experiment")
+        raise UserError("no recorded experiment")
     fields = {}
     for key in SETTINGS:
         value = rec.get(key) or {}
         if not isinstance(value, dict):
-            raise ValueError(f"experiment.{key} is a {type(value).__name__}, not a mapping")
+            raise UserError(f"experiment.{key} is a {type(value).__name__}, not a mapping")
         fields[key] = value
     runs = rec.get("runs")
     if not isinstance(runs, int) or isinstance(runs, bool):
-        raise ValueError(f"experiment.runs is {runs!r}, not a number of runs")
+        raise UserError(f"experiment.runs is {runs!r}, not a number of runs")
     try:
         return dataclasses.replace(current, runs=runs, **fields)
     except (TypeError, KeyError, AttributeError) as exc:  # a malformed setting's own error
-        raise ValueError(f"its settings cannot be rebuilt: {exc}") from None
+        raise UserError(f"its settings cannot be rebuilt: {exc}") from None
 
 
 def differences(recorded: Experiment, current: Experiment, env: str, objective: str) -> list[str]:
@@ -155,18 +156,18 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
     ``ValueError`` when the cells are malformed."""
     cells = summary.get("cells")
     if not isinstance(cells, list):
-        raise ValueError("cells is not a list")
+        raise UserError("cells is not a list")
     out = []
     for cell in cells:
         if not isinstance(cell, dict) or not isinstance(cell.get("rows"), list):
-            raise ValueError(f"a cell is malformed: {str(cell)[:60]}")
+            raise UserError(f"a cell is malformed: {str(cell)[:60]}")
         if cell.get("env_id") != env:
             continue
         for row in cell["rows"]:
             if not isinstance(row, dict) or not isinstance(row.get("backbone"), str):
-                raise ValueError(f"a row is malformed: {str(row)[:60]}")
+                raise UserError(f"a row is malformed: {str(row)[:60]}")
             if not isinstance(cell.get("arm"), str):
-                raise ValueError(f"a cell has no arm: {str(cell)[:60]}")
+                raise UserError(f"a cell has no arm: {str(cell)[:60]}")
             if _objective(row["backbone"]) == objective:
                 out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
@@ -258,7 +259,7 @@ def coverage(
     and exports under ``root`` that could not be read (``ValueError`` for an unknown preset).
     ``unreadable``: tables the caller could not read (``index.py``), left out here too."""
     if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}: one of {', '.join(PRESETS)}")
+        raise UserError(f"unknown preset {preset!r}: one of {', '.join(PRESETS)}")
     root = Path(root)
     tables, malformed = _tables(root)
     malformed = {name: "unreadable" for name in malformed}

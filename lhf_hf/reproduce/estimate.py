@@ -48,6 +48,7 @@ from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
 from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
 from lhf_hf.envs import get_spec, list_env_ids
 from lhf_hf.envs.registry import describe_space
+from lhf_hf.errors import UserError
 from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 from lhf_hf.utils.io import read_json
@@ -276,15 +277,15 @@ def reference_machines(data) -> list[dict]:
     results file) raises ``ValueError`` saying what is wrong, so a writer never takes it for an
     empty table and replaces it."""
     if not isinstance(data, dict):
-        raise ValueError(f"a rates table is a JSON object, not {type(data).__name__}")
+        raise UserError(f"a rates table is a JSON object, not {type(data).__name__}")
     if "machines" in data:
         machines = data["machines"]
         if not isinstance(machines, list) or not machines:
-            raise ValueError('"machines" must be a non-empty list of machine tables')
+            raise UserError('"machines" must be a non-empty list of machine tables')
     elif "rates" in data:
         machines = [data]
     else:
-        raise ValueError('neither "machines" nor "rates" is there')
+        raise UserError('neither "machines" nor "rates" is there')
     for i, m in enumerate(machines):
         check_machine(m, f"machine {i}")
     return list(machines)
@@ -306,27 +307,27 @@ def check_machine(m, where: str = "machine") -> None:
     ``rates``, a list of rates with a string key, integer threads (>= 0) and stages (>= 1), and
     finite non-negative seconds (``_RATE_FIELDS``)."""
     if not isinstance(m, dict):
-        raise ValueError(f"{where} is {type(m).__name__}, not an object")
+        raise UserError(f"{where} is {type(m).__name__}, not an object")
     for name in ("cpu", "isa", "machine", "date", "command"):
         if name in m and not isinstance(m[name], str):
-            raise ValueError(f"{where}: {name!r} must be a string, got {m[name]!r}")
+            raise UserError(f"{where}: {name!r} must be a string, got {m[name]!r}")
     if not isinstance(m.get("rates"), list):
-        raise ValueError(f"{where} has no list of rates")
+        raise UserError(f"{where} has no list of rates")
     for j, r in enumerate(m["rates"]):
         at = f"{where}, rate {j}"
         if not isinstance(r, dict):
-            raise ValueError(f"{at} is {type(r).__name__}, not an object")
+            raise UserError(f"{at} is {type(r).__name__}, not an object")
         for name, (types, required) in _RATE_FIELDS.items():
             if name not in r:
                 if required:
-                    raise ValueError(f"{at} has no {name!r}")
+                    raise UserError(f"{at} has no {name!r}")
                 continue
             v = r[name]
             if isinstance(v, bool) or not isinstance(v, types):
-                raise ValueError(f"{at}: {name!r} is {v!r}")
+                raise UserError(f"{at}: {name!r} is {v!r}")
             low = 1 if name == "stages" else 0
             if not isinstance(v, str) and not (finite_number(v) and v >= low):
-                raise ValueError(f"{at}: {name!r} is {str(v)[:40]}")
+                raise UserError(f"{at}: {name!r} is {str(v)[:40]}")
 
 
 def same_machine(m: dict, cpu: str, isa: str) -> bool:
@@ -348,7 +349,7 @@ def load_reference(path: Path = REFERENCE, cpu: str | None = None, isa: str | No
     try:
         machines = reference_machines(read_json(path))
     except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: not a rates table ({e})") from None
+        raise UserError(f"{path}: not a rates table ({e})") from None
     cpu = cpu_model() if cpu is None else cpu
     isa = instruction_set() if isa is None else isa
     machines = sorted(

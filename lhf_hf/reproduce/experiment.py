@@ -25,6 +25,7 @@ from lhf_hf.configs.commands import EXPERIMENT_PRESETS as PRESETS
 from lhf_hf.configs.filter import READS as FILTER_READS
 from lhf_hf.constants import OBJECTIVES
 from lhf_hf.envs import get_spec
+from lhf_hf.errors import UnknownNameError, UserError
 
 #: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
 EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
@@ -136,16 +137,16 @@ class Experiment:
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
-            raise ValueError(f"unknown preset {self.preset!r}: one of {PRESETS}")
+            raise UserError(f"unknown preset {self.preset!r}: one of {PRESETS}")
         for env in self.envs:
             get_spec(env)  # unknown env ids fail here, with the registry's list
         bad = [o for o in self.objectives if o not in OBJECTIVES]
         if bad or not self.objectives or not self.envs:
-            raise ValueError(f"{self.name}: objectives must be a non-empty subset of {OBJECTIVES}")
+            raise UserError(f"{self.name}: objectives must be a non-empty subset of {OBJECTIVES}")
         if not 1 <= self.runs <= MAX_RUNS:
-            raise ValueError(f"{self.name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
+            raise UserError(f"{self.name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
         if self.evaluate.get("plan_dicp", False) not in (True, False, "both"):
-            raise ValueError(
+            raise UserError(
                 f"{self.name}: evaluate.plan_dicp must be true, false or 'both', "
                 f"got {self.evaluate['plan_dicp']!r}"
             )
@@ -154,31 +155,31 @@ class Experiment:
             allowed = {f.name for f in dataclasses.fields(cls)} - SET_BY_RUN[stage]
             unknown = set(settings) - allowed - STAGE_EXTRAS.get(stage, set())
             if unknown:
-                raise ValueError(
+                raise UserError(
                     f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
                     f"(one of {sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})"
                 )
         by_objective = self.train.get("by_objective") or {}  # null: none (a preset may cancel)
         if not isinstance(by_objective, dict):
-            raise ValueError(
+            raise UserError(
                 f"{self.name}: train.by_objective must map backbones ({', '.join(OBJECTIVES)}) "
                 f"to settings, got {by_objective!r}"
             )
         allowed = {f.name for f in dataclasses.fields(TrainConfig)} - SET_BY_RUN["train"]
         for objective, settings in by_objective.items():
             if objective not in OBJECTIVES:
-                raise ValueError(
+                raise UserError(
                     f"{self.name}: train.by_objective: {objective!r} is not a backbone "
                     f"(one of {', '.join(OBJECTIVES)})"
                 )
             if not isinstance(settings, dict):
-                raise ValueError(
+                raise UserError(
                     f"{self.name}: train.by_objective.{objective} must be a mapping of "
                     f"TrainConfig settings, got {settings!r}"
                 )
             unknown = set(settings) - allowed
             if unknown:
-                raise ValueError(
+                raise UserError(
                     f"{self.name}: train.by_objective.{objective}.{sorted(unknown)[0]} is not a "
                     f"setting of this stage (one of {sorted(allowed)})"
                 )
@@ -186,7 +187,7 @@ class Experiment:
         if sweep is not None and (
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
         ):
-            raise ValueError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
+            raise UserError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
         shared = {k: v for k, v in self.train.items() if k != "by_objective"}
         # Every config of every stage, built now: a bad value fails before anything runs, and
         # the message says which spec and stage.
@@ -215,9 +216,9 @@ class Experiment:
                 built = build()
             except (ValueError, TypeError, KeyError) as exc:
                 msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-                raise ValueError(f"{self.name}: {stage}: {msg}") from None
+                raise UserError(f"{self.name}: {stage}: {msg}") from None
             if stage == "filter" and len({cfg for _, cfg in built}) != len(built):
-                raise ValueError(f"{self.name}: filter.sweep values repeat (the same config twice)")
+                raise UserError(f"{self.name}: filter.sweep values repeat (the same config twice)")
 
     # ---- the configs of the stages (one source: the config dataclasses)
     def collect_config(self, env: str, run: int) -> CollectConfig:
@@ -236,7 +237,7 @@ class Experiment:
         arms = self.filter_arms(0)
         for env in self.envs:
             if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
-                raise ValueError(
+                raise UserError(
                     f"{env} has no known optimal return: set filter: {{r_max: ...}} (the "
                     "maximal episode return its scores divide by)"
                 )
@@ -250,12 +251,12 @@ class Experiment:
             return [("lhf", FilterConfig(**base, seed=run))]
         key = sweep["key"]
         if key in SET_BY_RUN["filter"]:
-            raise ValueError(f"filter.sweep.key {key!r} is set by each run (run r uses seed r)")
+            raise UserError(f"filter.sweep.key {key!r} is set by each run (run r uses seed r)")
         if key not in {f.name for f in dataclasses.fields(FilterConfig)}:
-            raise ValueError(f"filter.sweep.key {key!r} is not a FilterConfig field")
+            raise UserError(f"filter.sweep.key {key!r} is not a FilterConfig field")
         strategy = base.get("strategy", FilterConfig.strategy)
         if key != "strategy" and key not in FILTER_READS.get(strategy, {key}):
-            raise ValueError(
+            raise UserError(
                 f"filter.sweep.key {key!r}: the {strategy!r} strategy does not read it, so every "
                 f"arm would select the same histories (it reads {sorted(FILTER_READS[strategy])})"
             )
@@ -329,7 +330,7 @@ def spec_path(name_or_path: str | Path) -> Path:
         if path.is_dir():
             raise KeyError(folder)
         if not path.is_file():
-            raise KeyError(f"no such spec file: {str(name_or_path)!r}")
+            raise UnknownNameError(f"no such spec file: {str(name_or_path)!r}")
         return path
     shipped = EXPERIMENTS_DIR / f"{name_or_path}.yaml"
     if shipped.exists():  # a shipped name wins over a folder or file of that name here
@@ -338,7 +339,9 @@ def spec_path(name_or_path: str | Path) -> Path:
         raise KeyError(folder)
     # a file without a suffix is not taken for a spec: say so rather than "unknown"
     hint = " (a spec file needs a .yaml or .yml suffix)" if path.is_file() else " (or a yaml path)"
-    raise KeyError(f"unknown experiment {name_or_path!r}: one of {experiment_names()}{hint}")
+    raise UnknownNameError(
+        f"unknown experiment {name_or_path!r}: one of {experiment_names()}{hint}"
+    )
 
 
 def load_experiment(
@@ -353,27 +356,27 @@ def load_experiment(
     try:
         spec = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path} is not valid YAML: {exc}") from None
+        raise UserError(f"{path} is not valid YAML: {exc}") from None
     if not isinstance(spec, dict):
-        raise ValueError(f"{path}: a spec is a mapping of settings, got a {type(spec).__name__}")
+        raise UserError(f"{path}: a spec is a mapping of settings, got a {type(spec).__name__}")
     presets = spec.pop("presets", {}) or {}
     if not isinstance(presets, dict) or not all(isinstance(v, dict) for v in presets.values()):
-        raise ValueError(f"{path}: presets must map each preset name to its settings")
+        raise UserError(f"{path}: presets must map each preset name to its settings")
     if preset not in presets:
-        raise ValueError(f"{path.stem} has no preset {preset!r} (it has {sorted(presets)})")
+        raise UserError(f"{path.stem} has no preset {preset!r} (it has {sorted(presets)})")
     paper = spec.pop("paper", {}) or {}
     merged = _merge(spec, presets[preset])
     if isinstance(spec.get("train"), dict) and isinstance(presets[preset].get("train"), dict):
         merged["train"] = _merge_train(spec["train"], presets[preset]["train"])
     unknown = set(merged) - TOP_KEYS
     if unknown:
-        raise ValueError(f"{path}: unknown keys {sorted(unknown)} (one of {sorted(TOP_KEYS)})")
+        raise UserError(f"{path}: unknown keys {sorted(unknown)} (one of {sorted(TOP_KEYS)})")
     for stage in CONFIGS:
         if not isinstance(merged.get(stage, {}), dict):
-            raise ValueError(f"{path}: {stage} must be a mapping of settings")
+            raise UserError(f"{path}: {stage} must be a mapping of settings")
     for key in ("envs", "objectives"):
         if not isinstance(merged.get(key, []), list):
-            raise ValueError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
+            raise UserError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
     if runs is not None:
         merged["runs"] = int(runs)
     shipped = path.resolve() == (EXPERIMENTS_DIR / f"{path.stem}.yaml").resolve()
@@ -391,7 +394,7 @@ def load_experiment(
         return exp
     unknown = sorted(set(objectives) - set(exp.objectives))
     if unknown or not objectives:
-        raise ValueError(
+        raise UserError(
             f"{exp.name} has no backbone {unknown[0] if unknown else '(none given)'!r}: "
             f"choose among {list(exp.objectives)}"
         )

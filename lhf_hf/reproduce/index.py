@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 from urllib.parse import quote
 
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.io import read_json, write_text_atomic
 
 from .coverage import coverage as cells_of
@@ -155,15 +156,15 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
     when its settings or cells are malformed).  ``coverage``: a preset whose cells of every shipped
     spec are listed first, done or not (``coverage.py``)."""
     if not str(root).strip():  # '' would be the current folder
-        raise ValueError("the results folder (--root) is empty: name it")
+        raise UserError("the results folder (--root) is empty: name it")
     root = Path(root)
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"{root} is a file, not a results folder")
     if not root.is_dir():
-        raise FileNotFoundError(f"no results folder {root}")
+        raise NotFoundError(f"no results folder {root}")
     where = Path(os.path.abspath(root))  # not resolve(): a symlinked root keeps its name
     if (root / "results.json").exists():  # its README.md would sit beside one table's report
-        raise ValueError(
+        raise UserError(
             f"{root} is one table's folder (it holds results.json): give the folder that holds "
             f"the tables, {where.parent}"
         )

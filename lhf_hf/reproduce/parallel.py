@@ -26,6 +26,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from lhf_hf.errors import UserError, UserRuntimeError
+
 from .stages import DONE_FILE, LOG_FILE, NO_RECORD, Stage, StageRunner
 
 #: Kinds of stage that use every core by themselves (collection: its own worker processes).
@@ -38,7 +40,7 @@ ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THRE
 
 def check_jobs(jobs) -> None:
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+        raise UserError(f"jobs must be an integer >= 1, got {jobs!r}")
 
 
 def can_start(stage: Stage, running: int, jobs: int) -> bool:
@@ -63,7 +65,7 @@ def run_stages(
     """Run ``stages`` (in dependency order) with ``runner``: in this process when ``jobs == 1``,
     else up to ``jobs`` child processes at once (``worker_command(stage)`` starts one)."""
     if jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs}")
+        raise UserError(f"jobs must be >= 1, got {jobs}")
     if jobs == 1:
         for stage in stages:
             runner.run(stage)
@@ -75,7 +77,7 @@ def run_stages(
             continue  # reported as cached: what it read may be left out (``needed_stages``)
         missing = [i.label for i in s.inputs if i.hash not in known]
         if missing:
-            raise ValueError(f"stage {s.label!r} reads {missing}, which are not in the plan")
+            raise UserError(f"stage {s.label!r} reads {missing}, which are not in the plan")
     pending = start_order(stages)
     running: dict[subprocess.Popen, tuple[Stage, float, object]] = {}
     finished: set[str] = set()
@@ -180,7 +182,7 @@ def run_stages(
     if error is not None:
         raise error
     if failed:
-        raise RuntimeError(
+        raise UserRuntimeError(
             f"{len(failed)} stage(s) failed: {failed}; their logs are named above. Finished "
             "stages are cached: fix the cause and run the same command again to resume."
         )

@@ -28,6 +28,7 @@ import re
 import shutil
 from pathlib import Path
 
+from lhf_hf.errors import UserError
 from lhf_hf.utils.io import read_json, sha256_file, write_json_atomic
 from lhf_hf.utils.outputs import check_manifest, output_folder
 
@@ -42,7 +43,7 @@ FORMAT = 1
 _HASH = re.compile(r"[0-9a-f]{64}")
 
 
-class ExportError(ValueError):
+class ExportError(UserError):
     """An export that cannot be written or read as asked (one clear line)."""
 
 
@@ -74,12 +75,12 @@ def read_index(src: str | Path) -> dict:
     try:
         index = read_json(path)
         if not isinstance(index, dict):
-            raise ValueError("not a JSON object")
+            raise UserError("not a JSON object")
         if index.get("format") != FORMAT:
-            raise ValueError(f"format {index.get('format')!r}, this version reads {FORMAT}")
+            raise UserError(f"format {index.get('format')!r}, this version reads {FORMAT}")
         entries = index.get("stages")
         if not isinstance(entries, list):
-            raise ValueError("'stages' is not a list")
+            raise UserError("'stages' is not a list")
         for i, e in enumerate(entries):
             _check_entry(e, i)
     except ValueError as exc:
@@ -89,20 +90,20 @@ def read_index(src: str | Path) -> dict:
 
 def _check_entry(e, i: int) -> None:
     if not isinstance(e, dict) or not {"kind", "label", "hash", "path"} <= set(e):
-        raise ValueError(f"stage {i} is not {{kind, label, hash, path}}")
+        raise UserError(f"stage {i} is not {{kind, label, hash, path}}")
     if e["kind"] not in KINDS:
-        raise ValueError(f"stage {i} has an unknown kind {e['kind']!r} (one of {KINDS})")
+        raise UserError(f"stage {i} has an unknown kind {e['kind']!r} (one of {KINDS})")
     if not isinstance(e["hash"], str) or not _HASH.fullmatch(e["hash"]):
-        raise ValueError(f"stage {i}'s hash is not a SHA-256")
+        raise UserError(f"stage {i}'s hash is not a SHA-256")
     want = (
         f"{e['kind']}/{e['hash'][:12]}"
         if e["kind"] in PORTABLE
         else f"records/{e['kind']}-{e['hash'][:12]}.json"
     )
     if e["path"] != want:  # also keeps every path inside the export
-        raise ValueError(f"stage {i}'s path is {e['path']!r}, expected {want!r}")
+        raise UserError(f"stage {i}'s path is {e['path']!r}, expected {want!r}")
     if e["kind"] in PORTABLE and not isinstance(e.get("files"), dict):
-        raise ValueError(f"stage {i} lists no files")
+        raise UserError(f"stage {i} lists no files")
 
 
 def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about: dict) -> dict:

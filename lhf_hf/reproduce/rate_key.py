@@ -17,6 +17,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, replace
 
+from lhf_hf.errors import UserError
+
 SEP = "|"
 _CONTEXT = re.compile(r"ctx(\d+)")
 
@@ -31,13 +33,13 @@ class RateKey:
     def __post_init__(self):
         parts = [self.kind, *([] if self.env is None else [self.env]), *self.fields]
         if any(not isinstance(p, str) or not p or SEP in p for p in parts):
-            raise ValueError(f"a rate key's parts are non-empty text without {SEP!r}: {parts}")
+            raise UserError(f"a rate key's parts are non-empty text without {SEP!r}: {parts}")
         if self.env is None and (self.fields or self.context is not None):
-            raise ValueError(f"a {self.kind} rate key without an env has nothing else")
+            raise UserError(f"a {self.kind} rate key without an env has nothing else")
         if any(_CONTEXT.fullmatch(f) for f in self.fields):
-            raise ValueError(f"a context tag is RateKey.context, not a field: {self.fields}")
+            raise UserError(f"a context tag is RateKey.context, not a field: {self.fields}")
         if self.context is not None and (isinstance(self.context, bool) or self.context < 1):
-            raise ValueError(f"a rate key's context is a positive length, not {self.context!r}")
+            raise UserError(f"a rate key's context is a positive length, not {self.context!r}")
 
     @classmethod
     def parse(cls, text: str) -> RateKey:

@@ -22,6 +22,7 @@ from pathlib import Path
 from lhf_hf.collection import collect
 from lhf_hf.collection.batched_collector import resolve_ppo_backend
 from lhf_hf.configs import CollectConfig
+from lhf_hf.errors import UserError, UserRuntimeError
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare, mean_curves
 from lhf_hf.evaluation.evaluate import RESULTS_FILE as EVAL_RESULTS
@@ -228,7 +229,7 @@ def report_out(exp: Experiment, out: str | Path | None) -> str | Path:
     if out is None:
         return default_out(exp)
     if not str(out).strip():
-        raise ValueError("--out is empty: name the report's folder")
+        raise UserError("--out is empty: name the report's folder")
     return out
 
 
@@ -238,7 +239,7 @@ def default_out(exp: Experiment) -> str:
     its default would be the shipped table's folder, whose report it would replace."""
     out = report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
     if shadows_shipped(exp.name, exp.spec):
-        raise ValueError(
+        raise UserError(
             f"{shlex.quote(exp.spec)} is named like the shipped spec {exp.name!r}, whose table's "
             f"folder is {out}: name this report's folder with --out"
         )
@@ -267,7 +268,9 @@ def snapshot_spec(
         dataclasses.replace(load_experiment(str(copy), preset, runs, objectives), spec=exp.spec)
         != exp
     ):
-        raise RuntimeError(f"the spec {name!r} changed while this run was starting: run it again")
+        raise UserRuntimeError(
+            f"the spec {name!r} changed while this run was starting: run it again"
+        )
     return copy
 
 
@@ -356,10 +359,10 @@ def check_work(work: str | Path) -> Path:
     """The stage cache's folder: refused when empty (``--work ''`` would be the current folder) or
     when it is a file (a mistyped path would otherwise be estimated as an empty cache)."""
     if not str(work).strip():
-        raise ValueError("the work folder (--work) is empty: name the stage cache's folder")
+        raise UserError("the work folder (--work) is empty: name the stage cache's folder")
     path = Path(work)
     if path.exists() and not path.is_dir():
-        raise ValueError(f"--work {work}: a file, not a stage cache folder")
+        raise UserError(f"--work {work}: a file, not a stage cache folder")
     return path
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 from transformers import AutoConfig
 
 from lhf_hf import constants as C
+from lhf_hf.errors import UserError
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
@@ -27,17 +28,15 @@ class CheckpointArtifact(HubArtifact):
             return False
         model_type = read_json(path / "config.json").get("model_type")
         if model_type != "lhf_icrl":
-            raise ValueError(f"{path} holds a {model_type!r} model, not an lhf_icrl checkpoint")
+            raise UserError(f"{path} holds a {model_type!r} model, not an lhf_icrl checkpoint")
         return True
 
     @classmethod
     def check(cls, path: Path) -> None:
         if not (path / "model.safetensors").exists():
-            raise ValueError(f"{path}: no weights (model.safetensors)")
+            raise UserError(f"{path}: no weights (model.safetensors)")
         if not (path / TRAIN_CONFIG_FILE).exists():
-            raise ValueError(
-                f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)"
-            )
+            raise UserError(f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)")
         load_model(str(path))
 
     @classmethod

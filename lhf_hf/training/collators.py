@@ -15,6 +15,7 @@ from abc import ABC, abstractmethod
 import numpy as np
 import torch
 
+from lhf_hf.errors import UserError
 from lhf_hf.modeling import ICRLConfig
 
 from .windows import HistoryArrays
@@ -75,7 +76,7 @@ class ADCollator(WindowCollator):
 class DPTCollator(WindowCollator):
     def __init__(self, arrays: HistoryArrays, config: ICRLConfig, length: int | None = None):
         if arrays.optimal_actions is None:
-            raise ValueError("DPT needs the oracle's optimal actions (column action.optimal)")
+            raise UserError("DPT needs the oracle's optimal actions (column action.optimal)")
         super().__init__(arrays, config, length)
 
     def labels(self, rows):

@@ -26,6 +26,7 @@ from transformers.trainer_utils import PREFIX_CHECKPOINT_DIR
 from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
 from lhf_hf.envs import get_spec
+from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.filtering.select import SCORES_FILE, load_selection, source_mismatch
 from lhf_hf.histories import load_histories
 from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
@@ -191,7 +192,7 @@ def sequence_length(cfg: TrainConfig, config: ICRLConfig) -> int:
     if config.attention != "band":
         return config.context_length
     if cfg.sequence_length is not None and cfg.sequence_length < config.context_length:
-        raise ValueError(
+        raise UserError(
             f"TrainConfig.sequence_length must be >= the context length {config.context_length}, "
             f"got {cfg.sequence_length}"
         )
@@ -202,14 +203,14 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
     """The ICRLConfig that ``cfg`` trains on env ``spec`` (spaces, context, planning from the env)."""
     if cfg.objective == "dpt":
         if not spec.has_optimal_action or not has_optimal:
-            raise ValueError(
+            raise UserError(
                 f"DPT needs the oracle's optimal action of every state (column {C.OPTIMAL_ACTION}); "
                 f"the {spec.env_id} dataset has none (the paper runs DPT on the gridworlds only)"
             )
     state_space, action_space = spec.state_space, spec.action_space
     integer_states = np.issubdtype(state_space.dtype, np.integer)
     if cfg.state_encoding == "cells" and not integer_states:
-        raise ValueError(
+        raise UserError(
             f"TrainConfig.state_encoding='cells' needs integer (grid) states; {spec.env_id}'s states "
             "are real-valued: use 'coordinates' (real states are used as they are)"
         )
@@ -217,7 +218,7 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
     reward_classes = list(spec.reward_values) if spec.reward_values else None
     weighting_applies = cfg.objective == "dicp" and discrete and bool(reward_classes)
     if cfg.reward_weighting == "actions" and not weighting_applies:
-        raise ValueError(
+        raise UserError(
             "TrainConfig.reward_weighting='actions' weighs DICP's reward-classification loss, on "
             "envs with discrete actions and few reward values; "
             + (
@@ -253,14 +254,14 @@ def check_model_env(config: ICRLConfig, spec) -> None:
     discrete = isinstance(spec.action_space, gym.spaces.Discrete)
     if config.discrete_actions != discrete:
         kind = "discrete" if config.discrete_actions else "continuous"
-        raise ValueError(
+        raise UserError(
             f"the model has a {kind} action head but {spec.env_id} has a "
             f"{'discrete' if discrete else 'continuous'} action space {spec.action_space}"
         )
     n = int(spec.action_space.n) if discrete else int(np.prod(spec.action_space.shape))
     s = int(np.prod(spec.state_space.shape))
     if config.action_dim != n or config.state_dim != s:
-        raise ValueError(
+        raise UserError(
             f"the model expects {config.state_dim}-dim states and {config.action_dim} actions, "
             f"{spec.env_id} has {s} and {n}"
         )
@@ -300,13 +301,13 @@ def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.
     local = resolve(selection_dir, "dataset", "selection")
     sel = load_selection(local)
     if sel.source.get("fingerprint") is None:
-        raise ValueError(f"the selection {selection_dir} does not record its source dataset")
+        raise UserError(f"the selection {selection_dir} does not record its source dataset")
     for problem in source_mismatch(ds, sel):
-        raise ValueError(f"{selection_dir}: {problem}")
+        raise UserError(f"{selection_dir}: {problem}")
     counts = sel.counts()
     unknown = set(counts) - set(arrays.history_index.tolist())
     if unknown:
-        raise ValueError(f"the selection names {len(unknown)} histories that {ds.root} lacks")
+        raise UserError(f"the selection names {len(unknown)} histories that {ds.root} lacks")
     out = np.array([counts.get(int(h), 0) for h in arrays.history_index], np.int64)
     info = {
         "path": source_of(selection_dir, local),
@@ -333,7 +334,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     data_tasks = sorted({int(t) for t in ds.histories.data.table.column("task_index").to_pylist()})
     config.train_tasks, config.split_seed = data_tasks, split_seed
     if config.objective != cfg.objective:
-        raise ValueError(
+        raise UserError(
             f"model objective {config.objective!r} != train objective {cfg.objective!r}"
         )
     arrays = load_arrays(
@@ -346,14 +347,14 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     shortest = int(arrays.history_lengths.min())
     if config.context_length <= shortest < length:  # band sequences only: windows are checked below
         default = " (the default: 4 x the context)" if cfg.sequence_length is None else ""
-        raise ValueError(
+        raise UserError(
             f"band-attention sequences of {length} transitions{default} are longer than the "
             f"shortest history ({shortest} transitions): pass a --sequence-length between "
             f"{config.context_length} and {shortest}"
         )
     windows = WindowDataset(arrays, length, counts)
     if cfg.batch_size > len(windows):
-        raise ValueError(
+        raise UserError(
             f"--batch-size {cfg.batch_size} is larger than the {len(windows)} training windows of "
             f"{length} transitions in {cfg.dataset}: pass --batch-size {len(windows)} or less, or "
             "a shorter --context-length"
@@ -364,7 +365,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     # PartialState() here would initialise accelerate's shared state as non-distributed on CPU).
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if cfg.batch_size % world:
-        raise ValueError(f"--batch-size {cfg.batch_size} is not divisible by the {world} processes")
+        raise UserError(f"--batch-size {cfg.batch_size} is not divisible by the {world} processes")
     set_seed(cfg.seed)
     model = ICRLModel(config)
     args = TrainingArguments(
@@ -458,7 +459,7 @@ def check_resume(checkpoint: str, identity: dict) -> None:
     """Refuse to resume ``checkpoint`` with another dataset, selection, model or settings."""
     path = Path(checkpoint) / IDENTITY_FILE
     if not path.exists():
-        raise ValueError(
+        raise UserError(
             f"--resume: {checkpoint} does not record what it was trained with ({IDENTITY_FILE}), "
             "so resuming it cannot be checked; train afresh with --overwrite"
         )
@@ -475,7 +476,7 @@ def check_resume(checkpoint: str, identity: dict) -> None:
         if old.get(k) != identity[k]:
             diff.append(f"{k.split('_')[0]}: {str(old.get(k))[:16]} -> {str(identity[k])[:16]}")
     if diff:
-        raise ValueError(
+        raise UserError(
             f"--resume: {checkpoint} was trained with a different setup ({'; '.join(diff)}); "
             "resume with the same settings, or --overwrite to start afresh"
         )
@@ -487,14 +488,14 @@ def check_resume_config(checkpoint: str, config: ICRLConfig) -> None:
     try:
         saved = read_json(Path(checkpoint) / "config.json")
     except (OSError, ValueError) as exc:
-        raise ValueError(f"--resume: {checkpoint}/config.json is unreadable ({exc})") from None
+        raise UserError(f"--resume: {checkpoint}/config.json is unreadable ({exc})") from None
     diff = [
         f"{k}: {saved.get(k, _BEFORE_FIELD.get(k))!r} (checkpoint) vs {getattr(config, k)!r}"
         for k in _MODEL_FIELDS
         if saved.get(k, _BEFORE_FIELD.get(k)) != getattr(config, k)
     ]
     if diff:
-        raise ValueError(
+        raise UserError(
             f"--resume: {checkpoint}/config.json does not describe this run's model "
             f"({'; '.join(diff[:4])}); resume with the same settings, or --overwrite"
         )
@@ -556,7 +557,7 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bo
             resume = last_checkpoint(out)
             if resume is None:
                 fix = "--overwrite to train afresh" if existed else "train without --resume"
-                raise FileNotFoundError(
+                raise NotFoundError(
                     f"--resume: no complete checkpoint-* folder in {out} to resume from: {fix}"
                 )
         step = _train_into(cfg, model_config, out, resume, progress)
@@ -582,7 +583,7 @@ def _write_model(trainer, cfg: TrainConfig, out: Path, provenance, result, resum
     """Rank 0: the final weights, ``train_config.json``, the loss log and plot, and the card."""
     bad = [n for n, p in trainer.model.named_parameters() if not torch.isfinite(p).all()]
     if bad:  # e.g. a learning rate that made it diverge: not a model anyone should evaluate
-        raise ValueError(
+        raise UserError(
             f"training diverged: {len(bad)} weight tensors hold NaN or infinite values (e.g. "
             f"{bad[0]}) at step {trainer.state.global_step} (lr {cfg.lr:g}): no model written; "
             "train again with a smaller --lr"

@@ -16,6 +16,7 @@ import pyarrow as pa
 import torch
 
 from lhf_hf import constants as C
+from lhf_hf.errors import UserError
 from lhf_hf.histories.reader import DatasetFormatError
 
 
@@ -157,7 +158,7 @@ class WindowDataset(torch.utils.data.Dataset):
         self.context_length = int(context_length)
         lengths = arrays.history_lengths
         if self.context_length > lengths.min():
-            raise ValueError(
+            raise UserError(
                 f"a window of {self.context_length} transitions is longer than the shortest history "
                 f"({int(lengths.min())} transitions): use a --context-length (with band attention, "
                 f"a --sequence-length) <= {int(lengths.min())}"
@@ -168,7 +169,7 @@ class WindowDataset(torch.utils.data.Dataset):
             else np.asarray(counts, np.int64)
         )
         if counts.shape != (arrays.num_histories,) or np.any(counts < 0) or counts.sum() == 0:
-            raise ValueError("counts must be one non-negative count per history, not all zero")
+            raise UserError("counts must be one non-negative count per history, not all zero")
         self.windows_per_history = lengths - self.context_length + 1  # (H,)
         self.cumulative = np.cumsum(counts * self.windows_per_history)  # (H,)
         self.counts = counts

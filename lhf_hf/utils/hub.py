@@ -41,6 +41,7 @@ from huggingface_hub.errors import (
 from huggingface_hub.utils import validate_repo_id as _validate
 
 from lhf_hf import constants as C
+from lhf_hf.errors import NotFoundError, UserRuntimeError
 
 from .io import read_json, sha256_file
 from .outputs import MARKER, check_manifest
@@ -52,7 +53,7 @@ _EXCLUDED_FILES = re.compile(r"^(\..*|_.*|.*\.tmp|training_args\.bin)$")
 _REPO_REF = re.compile(r"^(?P<repo>[A-Za-z0-9][\w.\-]*/[\w.\-]+)(?:@(?P<rev>[^\s@]+))?$")
 
 
-class HubError(RuntimeError):
+class HubError(UserRuntimeError):
     """A Hub operation failed; the message says what and how to fix it."""
 
 
@@ -107,7 +108,7 @@ def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
         return p
     ref = parse_hub_ref(str(spec))
     if ref is None:
-        raise FileNotFoundError(
+        raise NotFoundError(
             f"no {what} at {str(spec)!r}: no such local folder (and not of the Hub repo id form "
             "ORG/NAME[@REVISION])"
         )

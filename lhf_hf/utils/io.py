@@ -12,6 +12,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from lhf_hf.errors import MissingFieldError, UserError
+
 
 def _umask() -> int:
     mask = os.umask(0o022)  # reading the umask means setting it: set it back at once
@@ -23,15 +25,29 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+class Fields(dict):
+    """A JSON object read from a file: a missing field is a ``MissingFieldError`` that names the
+    file (damaged, or not written by lhf_hf), not a bare ``KeyError`` that reads as a bug."""
+
+    def __init__(self, pairs, source: Path):
+        super().__init__(pairs)
+        self.source = source
+
+    def __missing__(self, key):
+        raise MissingFieldError(
+            f"{self.source} has no field {key!r}: the file is damaged or not written by lhf_hf"
+        )
+
+
 def read_json(path: str | os.PathLike):
-    """The JSON value in ``path``; a malformed file is a ``ValueError`` naming it (json's own
-    message gives only a line and column)."""
+    """The JSON value in ``path``, its objects as ``Fields``; a malformed file is a ``UserError``
+    naming it (json's own message gives only a line and column)."""
     path = Path(path)
     text = path.read_text()
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=lambda pairs: Fields(pairs, path))
     except ValueError as exc:
-        raise ValueError(
+        raise UserError(
             f"{path} is not valid JSON ({exc}): the file is damaged or not ours"
         ) from None
 

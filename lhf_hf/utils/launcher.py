@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 
+from lhf_hf.errors import UserRuntimeError
+
 
 def end_ranks() -> None:
     """Every rank waits for the others, then the process group is unregistered
@@ -35,7 +37,7 @@ def wait_for_ranks(state) -> None:
     try:
         state.wait_for_everyone()
     except RuntimeError as exc:  # torch.distributed.DistBackendError is one
-        raise RuntimeError(
+        raise UserRuntimeError(
             f"rank {state.process_index} of {state.num_processes}: another rank stopped before "
             f"reaching this point (its own error is printed above)"
         ) from exc

@@ -39,6 +39,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from lhf_hf import __version__
+from lhf_hf.errors import UserError
 
 from .io import read_json, sha256_file, write_json_atomic
 from .signals import interrupts_held, interrupts_ignored
@@ -49,7 +50,7 @@ MARKER = ".lhf_output.json"
 COMPLETED: list[tuple[str, Path]] = []
 
 
-class OutputError(FileExistsError):
+class OutputError(UserError, FileExistsError):
     """The output folder may not be written as asked (a user error: one clear line)."""
 
 
@@ -308,7 +309,7 @@ def preflight(
     """The checks of ``output_folder`` without writing anything: whether ``out`` may be written
     as asked (raises ``OutputError`` if not).  Returns the real path (symlinks resolved)."""
     if resume and overwrite:
-        raise ValueError("resume and overwrite exclude each other")
+        raise UserError("resume and overwrite exclude each other")
     given = Path(out)
     if given.exists() and not given.is_dir():
         raise OutputError(f"{given} is a file, not a folder: choose another output")

@@ -132,3 +132,53 @@ def test_a_file_missing_a_field_is_named_as_such(small_darkroom, tmp_path, capsy
 def test_a_negative_seed_names_its_flag(command, capsys):
     assert main([*command, "--seed", "-1"]) == 1
     assert "seed must be >= 0, got -1" in capsys.readouterr().err
+
+
+def _raising(exc):
+    def run(args):
+        raise exc
+
+    return run
+
+
+def test_an_expected_failure_is_one_line_and_a_bug_keeps_its_traceback(monkeypatch, capsys):
+    """UserError (and its kinds) -> one line, exit 1; a KeyError or TypeError of our own code is a
+    bug: it propagates with its traceback instead of posing as bad input."""
+    from lhf_hf.errors import NotFoundError, UnknownNameError, UserError
+
+    for exc, line in [
+        (UserError("histories must be >= 1, got 0"), "histories must be >= 1, got 0"),
+        (NotFoundError("no dataset folder at d"), "no dataset folder at d"),
+        (UnknownNameError("unknown env id 'x'"), "unknown env id 'x'"),  # not KeyError's quotes
+    ]:
+        monkeypatch.setattr(envs, "run", _raising(exc))
+        assert main(["envs"]) == 1
+        err = capsys.readouterr().err
+        assert err == f"lhf envs: error: {line}\n", err
+    for bug in [KeyError("window_size"), TypeError("f() got an unexpected keyword"), IndexError(3)]:
+        monkeypatch.setattr(envs, "run", _raising(bug))
+        with pytest.raises(type(bug)):
+            main(["envs"])
+
+
+def test_lhf_debug_shows_the_traceback_of_an_expected_failure(monkeypatch, capsys):
+    from lhf_hf.errors import UserError
+
+    monkeypatch.setattr(envs, "run", _raising(UserError("bad value")))
+    monkeypatch.setenv("LHF_DEBUG", "1")
+    assert main(["envs"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and err.endswith("lhf envs: error: bad value\n")
+
+
+def test_a_field_missing_from_a_file_names_the_file(tmp_path):
+    from lhf_hf.errors import MissingFieldError, UserError
+    from lhf_hf.utils.io import read_json
+
+    (tmp_path / "info.json").write_text('{"a": {"b": 1}, "c": [{"d": 2}]}')
+    record = read_json(tmp_path / "info.json")
+    assert record == {"a": {"b": 1}, "c": [{"d": 2}]} and record.get("x") is None
+    for get in (lambda r: r["x"], lambda r: r["a"]["y"], lambda r: r["c"][0]["z"]):
+        with pytest.raises(MissingFieldError, match=r"info.json has no field '[xyz]'") as info:
+            get(record)
+        assert isinstance(info.value, UserError) and isinstance(info.value, KeyError)

@@ -281,6 +281,15 @@ def test_dicp_forward_needs_actions():
         model_for(config)(**batch)
 
 
+def test_a_mistyped_input_is_refused_not_dropped():
+    # a collator key with a typo (reward_label for reward_labels) must not train without its loss
+    config = grid_config("dicp")
+    batch, _ = make_batch(config)
+    batch["reward_label"] = torch.zeros(batch["states"].shape[:2])
+    with pytest.raises(TypeError, match="reward_label"):
+        model_for(config)(**batch)
+
+
 @pytest.mark.parametrize(
     "fields, field",
     [

@@ -1,0 +1,189 @@
+"""Does the reference planner beat its own policy once DICP has trained long?  (issue 56)
+
+Collects the evaluations of one DICP training's snapshots into ``convergence.json`` and
+``convergence.png``: return against training steps for the policy alone, the reference planner
+(``--plan``: every step once the context is full), the gated planner (``--plan-gate reward_seen``,
+ours) and the planner with the environment's true dynamics (``--plan-dynamics oracle``, the
+planner's ceiling), with the DICP paper's Darkroom levels (AD 12.5, DICP 15) as lines.  Per
+snapshot it also gives the planner's gain over the policy within goals: each validation goal's
+return (mean over its rollouts) with planning minus without, and the 95 % t-interval of that
+difference over the goals, so a pooled mean is never the only evidence.
+
+The runs it reads were made with (split 0; validation goals = split 0's held-out train goals)::
+
+    lhf collect darkroom --tasks fit --histories 100 --protocol paper --collector batched \
+        --ppo-backend kernel --out data/dr100fit
+    OMP_NUM_THREADS=1 lhf train --dataset data/dr100fit --objective dicp --preset paper \
+        --max-steps 12000 --batch-size 64 --lr 3e-3 --reward-weighting data --seed 0 \
+        --save-steps 500 --out runs/dicp56/baseline        # snapshots copied at log-spaced steps
+    lhf evaluate --model SNAPSHOT --tasks validation --episodes 100 --rollouts 4 --seed 0 \
+        [--plan [--plan-gate reward_seen | --plan-dynamics oracle]] --out EVAL/step-N-MODE
+
+then::
+
+    python benchmarks/dicp_convergence.py --evals runs/dicp56/eval-baseline \
+        --train-log runs/dicp56/train.log --out results/planning/dicp_convergence
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from lhf_hf.utils.io import read_json, save_figure_atomic, write_json_atomic
+
+MODES = {
+    "policy": "DICP (policy alone)",
+    "plan": "DICP + plan (reference)",
+    "gated": "DICP + plan, gated on a seen reward (ours)",
+    "oracle": "planner with the true dynamics",
+}
+LEVELS = {"AD (DICP paper)": 12.5, "DICP + plan (DICP paper)": 15.0}
+_FOLDER = re.compile(r"step-(\d+)-(\w+)$")
+
+
+def goal_means(result: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(whole-curve, last 10 %) return per goal, each the mean over the goal's rollouts.
+
+    ``returns`` rows are rollout-major: row ``r * tasks + i`` is task ``i`` in rollout ``r``."""
+    returns = np.asarray(result["returns"], dtype=float)  # (rollouts * tasks, episodes)
+    tasks = len(result["tasks"])
+    per = returns.reshape(-1, tasks, returns.shape[1])  # (rollouts, tasks, episodes)
+    tail = max(1, returns.shape[1] // 10)
+    return per.mean(axis=(0, 2)), per[:, :, -tail:].mean(axis=(0, 2))
+
+
+def paired(a: np.ndarray, b: np.ndarray) -> dict:
+    """Mean of ``a - b`` over goals, its 95 % t-interval, and on how many goals it is > 0."""
+    d = a - b
+    half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else np.nan
+    return {
+        "mean": round(float(d.mean()), 4),
+        "ci95": [round(float(d.mean() - half), 4), round(float(d.mean() + half), 4)],
+        "goals_better": int((d > 0).sum()),
+        "goals_worse": int((d < 0).sum()),
+        "goals": len(d),
+    }
+
+
+def collect(evals: Path) -> dict:
+    points: dict[int, dict] = {}
+    for folder in sorted(evals.iterdir()):
+        m = _FOLDER.search(folder.name)
+        if not m or not (folder / "eval_results.json").exists():
+            continue
+        step, mode = int(m.group(1)), m.group(2)
+        res = read_json(folder / "eval_results.json")
+        whole, last = goal_means(res)
+        points.setdefault(step, {})[mode] = {
+            "whole_curve": round(float(whole.mean()), 4),
+            "last10": round(float(last.mean()), 4),
+            "per_goal_whole_curve": [round(float(x), 4) for x in whole],
+            "per_goal_last10": [round(float(x), 4) for x in last],
+            "tasks": res["tasks"],
+            "rollouts": res.get("rollouts"),
+            "episodes": len(res["mean_curve"]),
+            "task_label": res.get("task_label"),
+            "planned_steps": res.get("planned_steps"),
+            "wall_s": res.get("wall_s"),
+            "config": res["config"],
+        }
+    for modes in points.values():
+        if "policy" not in modes:
+            continue
+        base_w = np.array(modes["policy"]["per_goal_whole_curve"])
+        base_l = np.array(modes["policy"]["per_goal_last10"])
+        for mode, rec in modes.items():
+            if mode != "policy":
+                rec["minus_policy"] = {
+                    "whole_curve": paired(np.array(rec["per_goal_whole_curve"]), base_w),
+                    "last10": paired(np.array(rec["per_goal_last10"]), base_l),
+                }
+    return dict(sorted(points.items()))
+
+
+def train_minutes(log: Path | None) -> dict | None:
+    """The training's logged losses (every ``logging_steps``) and its final summary, if given."""
+    if log is None or not log.exists():
+        return None
+    losses, summary = [], None
+    for line in log.read_text().splitlines():
+        if line.startswith("{'loss'"):
+            losses.append(float(re.search(r"'loss': '([\d.e+-]+)'", line).group(1)))
+        elif line.startswith("{'train_runtime'"):
+            summary = line
+    return {"loss_every_logged_step": losses, "summary": summary}
+
+
+def plot(points: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
+    for ax, key, title in [
+        (axes[0], "whole_curve", "mean over the 100 episodes"),
+        (axes[1], "last10", "episodes 91-100"),
+    ]:
+        for mode, label in MODES.items():
+            xs = [s for s in points if mode in points[s]]
+            if not xs:
+                continue
+            ys = [points[s][mode][key] for s in xs]
+            per = [np.array(points[s][mode][f"per_goal_{key}"]) for s in xs]
+            err = [stats.sem(p) for p in per]
+            ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=label)
+        for name, level in LEVELS.items():
+            ax.axhline(level, ls="--", lw=0.8, color="grey")
+            ax.text(min(points), level + 0.15, name, fontsize=7, color="grey")
+        ax.set_xscale("log")
+        ax.set_xlabel("training steps (batch 64)")
+        ax.set_title(title, fontsize=10)
+    axes[0].set_ylabel("return on the 8 validation goals (4 rollouts; bars: s.e. over goals)")
+    axes[0].legend(fontsize=7, loc="lower right")
+    fig.suptitle("DICP on Darkroom (paper-protocol data, 100 histories per goal): planning vs policy")
+    fig.tight_layout()
+    save_figure_atomic(fig, out)
+    plt.close(fig)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--evals", required=True, help="folder of step-N-MODE evaluation folders")
+    p.add_argument("--train-log", default=None, help="lhf train's log (losses, summary)")
+    p.add_argument("--out", required=True)
+    args = p.parse_args()
+    points = collect(Path(args.evals))
+    if not points:
+        raise SystemExit(f"no step-N-MODE evaluations under {args.evals}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(
+        out / "convergence.json",
+        {
+            "modes": MODES,
+            "levels": LEVELS,
+            "points": {str(k): v for k, v in points.items()},
+            "training": train_minutes(Path(args.train_log) if args.train_log else None),
+        },
+    )
+    plot(points, out / "convergence.png")
+    for step, modes in points.items():
+        row = ", ".join(
+            f"{m} {r['whole_curve']:.2f}/{r['last10']:.2f}"
+            + (f" (d {r['minus_policy']['whole_curve']['mean']:+.2f} "
+               f"{r['minus_policy']['whole_curve']['ci95']})" if "minus_policy" in r else "")
+            for m, r in modes.items()
+        )  # fmt: skip
+        print(f"step {step}: {row}")
+    print(json.dumps(str(out / "convergence.png")))
+
+
+if __name__ == "__main__":
+    main()
