@@ -2,7 +2,7 @@
 
     python benchmarks/bench_eval.py [--episodes 12] [--repeats 3] [--model CKPT_DIR] [--json OUT]
 
-Targets (issue "evaluation", DESIGN.md 9), darkroom, paper preset, the 8 test tasks of split 0:
+Targets (issue "evaluation", docs/design.md 9), darkroom, paper preset, the 8 test tasks of split 0:
 - rollout env-steps/s with the sliding-window KV cache vs the same function recomputed every step
   (``--context recompute``: the receptive field, num_hidden_layers x (K - 1) + 1 tokens, with a
   banded mask): >= 10x, identical actions;

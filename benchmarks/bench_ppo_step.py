@@ -3,7 +3,7 @@
     python benchmarks/bench_ppo_step.py [--env darkroom] [--learners 81] [--repeats 3] [--json OUT]
                                         [--device cuda]
 
-The env's paper PPO settings (DESIGN.md 3: darkroom n_steps 20, batch 50, epochs 20;
+The env's paper PPO settings (docs/design.md 3: darkroom n_steps 20, batch 50, epochs 20;
 dark-key-to-door 50 / 100 / 10), 81 learners by default (one per task, paper protocol, 100 streams),
 2 epochs per timing.  Also projects the env's full paper dataset (every task x 100 histories x 1,000
 transitions): its PPO minibatch steps, their FLOPs, the FLOP floor at the measured bmm rate, and the

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_train.py --dataset data/darkroom [--steps 30] [--rounds 3] [--json OUT]
 
-Targets (DESIGN.md 9, issue "model family"): Trainer >= 0.9x the plain loop's tokens/s on the
+Targets (docs/design.md 9, issue "model family"): Trainer >= 0.9x the plain loop's tokens/s on the
 paper preset (AD, context 80, batch 64), and building a batch (sampler + collator) < 5% of a step.
 Also measured: the training attention (``lhf_sdpa``, lhf_hf/modeling/train_attention.py, the
 default) against torch's SDPA in the plain loop, and DICP (two tokens per transition);

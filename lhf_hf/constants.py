@@ -1,4 +1,4 @@
-"""Column names, file names and format versions: spelled out here and nowhere else (DESIGN.md 4)."""
+"""Column names, file names and format versions: spelled out here and nowhere else (docs/design.md 4)."""
 
 from typing import Literal, get_args
 

@@ -1,4 +1,4 @@
-"""Hub round trips (DESIGN.md 4 and 8): push any lhf artifact by repo id; load them back by repo id.
+"""Hub round trips (docs/design.md 4 and 8): push any lhf artifact by repo id; load them back by repo id.
 
 Three artifacts travel, each owning its card and checks beside its format: a learning-history dataset
 (``histories.artifact``, also a materialised LHF dataset), an LHF selection (``filtering.artifact``)

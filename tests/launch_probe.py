@@ -15,6 +15,7 @@ import time
 import torch.distributed as dist
 
 from lhf_hf.cli.main import main
+from lhf_hf.errors import UserError
 
 
 def _report() -> None:
@@ -24,7 +25,7 @@ def _report() -> None:
 
 def _failing(config, out, tasks, ranks, progress) -> None:
     time.sleep(3)  # the other ranks finish their share and wait at the barrier
-    raise ValueError(f"probe: rank {ranks.rank} fails")
+    raise UserError(f"probe: rank {ranks.rank} fails")  # an expected failure: one line
 
 
 if os.environ.get("LHF_PROBE_FAIL_RANK") == os.environ.get("RANK"):

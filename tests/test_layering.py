@@ -1,4 +1,4 @@
-"""The package's layering (DESIGN.md 1): a module imports only from lower layers (or its own package),
+"""The package's layering (docs/design.md 1): a module imports only from lower layers (or its own package),
 and no function-level import of lhf_hf is needed to break a cycle: the few that remain carry a
 ``# deferred: <reason>`` comment (a heavy or optional dependency)."""
 

@@ -1,4 +1,4 @@
-"""Collect learning histories: SB3 reference collector, recorder, protocols (DESIGN.md 3).
+"""Collect learning histories: SB3 reference collector, recorder, protocols (docs/design.md 3).
 
 The names below are imported on first use (PEP 562), so that ``lhf_hf.collection.ppo_backends``
 imports with torch alone (e.g. on a GPU machine without Stable-Baselines3 or ``datasets``).

@@ -2,7 +2,7 @@
 
 ``RecordingVecEnv`` wraps an SB3 ``VecEnv``; whatever steps it (an SB3 learner, a random policy)
 leaves behind, per copy, the ordered stream (s, a, r, s', done) that is one learning history.
-Unlike the reference code it logs (DESIGN.md section 3):
+Unlike the reference code it logs (docs/design.md section 3):
 
 * the **true final state** at an episode end: SB3 auto-resets and returns the reset state, hiding
   the real s' in ``infos[i]["terminal_observation"]``;

@@ -1,6 +1,6 @@
 """The reference collector: Stable-Baselines3 PPO/SAC learners whose streams are the histories.
 
-Protocols (DESIGN.md section 3; ``CollectConfig.protocol``):
+Protocols (docs/design.md section 3; ``CollectConfig.protocol``):
   paper        one learner per task over H parallel copies (``DummyVecEnv``); copy i -> history i.
   independent  H learners, each seeded on its own, each acting in one copy.
   noisy        ``paper`` on round(0.7 H) copies + a uniform random policy on the other copies

@@ -1,4 +1,4 @@
-"""Configuration of learning-history collection (DESIGN.md section 3, paper appendix A.1)."""
+"""Configuration of learning-history collection (docs/design.md section 3, paper appendix A.1)."""
 
 from __future__ import annotations
 
@@ -93,7 +93,7 @@ def _settings(cls: type, given: dict, name: str):
 
 
 def ppo_preset(env_id: str) -> PPOSettings:
-    """The paper's PPO settings for ``env_id`` (its ``EnvSpec.ppo``, DESIGN.md section 3)."""
+    """The paper's PPO settings for ``env_id`` (its ``EnvSpec.ppo``, docs/design.md section 3)."""
     n_steps, batch_size, n_epochs = get_spec(env_id).ppo
     return PPOSettings(n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs)
 

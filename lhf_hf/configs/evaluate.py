@@ -1,4 +1,4 @@
-"""Configuration of ``lhf evaluate`` and ``lhf compare`` (DESIGN.md 7)."""
+"""Configuration of ``lhf evaluate`` and ``lhf compare`` (docs/design.md 7)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Configuration of learning history filtering (paper section 4; DESIGN.md section 5)."""
+"""Configuration of learning history filtering (paper section 4; docs/design.md section 5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Configuration of ``lhf train`` (DESIGN.md 6; paper appendix "Transformer Models")."""
+"""Configuration of ``lhf train`` (docs/design.md 6; paper appendix "Transformer Models")."""
 
 from __future__ import annotations
 

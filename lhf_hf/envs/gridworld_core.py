@@ -2,7 +2,7 @@
 
 B copies of a gridworld are stepped at once, each with its own task (goal, key/door, action
 permutation).  Dynamics follow the paper's appendix "Environmental Setup" and the public DICP code
-(DESIGN.md section 2):
+(docs/design.md section 2):
 
 * state = (row, col); 5 actions 0=row+1, 1=row-1, 2=col+1, 3=col-1, 4=stay; moves clipped at walls;
 * the reward is read on the position *after* the move;
@@ -26,7 +26,7 @@ import numpy as np
 
 from lhf_hf.errors import UserError
 
-#: Row/col displacement of the five base actions (DESIGN.md section 2).
+#: Row/col displacement of the five base actions (docs/design.md section 2).
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0, 0]], dtype=np.int64)  # (5, 2)
 NUM_ACTIONS = len(MOVES)
 STAY = 4
@@ -142,7 +142,7 @@ def _transition_table(size: int) -> np.ndarray:
 
 
 def _oracle_table(size: int) -> np.ndarray:
-    """base_action[target * C + cell]: rows first, then columns, then stay (DESIGN.md section 2)."""
+    """base_action[target * C + cell]: rows first, then columns, then stay (docs/design.md section 2)."""
     rc = np.stack(np.divmod(np.arange(size * size), size), axis=-1)  # (C, 2)
     tgt, cur = rc[:, None, :], rc[None, :, :]  # (C, 1, 2), (1, C, 2)
     act = np.full((size * size, size * size), STAY, dtype=np.int64)  # (C_target, C_cell)
@@ -302,7 +302,7 @@ class BatchedGridworld:
         return self._coords[nxt], (nxt == self._goal[:, None]).astype(np.float32)
 
     def optimal_action(self) -> np.ndarray:
-        """(B,) the oracle's action in the current state (DPT labels, DESIGN.md section 2).
+        """(B,) the oracle's action in the current state (DPT labels, docs/design.md section 2).
 
         Move along rows first, then columns, then stay; towards the key until it is held, then the
         door; permuted tasks map the base action back through the permutation.

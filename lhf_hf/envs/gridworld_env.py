@@ -42,7 +42,7 @@ class GridworldEnv(gym.Env):
 
     @property
     def optimal_return(self) -> float:
-        """The task's optimal episode return (DESIGN.md section 2)."""
+        """The task's optimal episode return (docs/design.md section 2)."""
         return float(self._core.optimal_returns[0])
 
     @property

@@ -110,10 +110,10 @@ def _make_gridworld(
     return GridworldEnv(variant, task, **kwargs)
 
 
-# Model context (transitions) and DICP planning depth of the reference code (DESIGN.md 6, 7).
+# Model context (transitions) and DICP planning depth of the reference code (docs/design.md 6, 7).
 _CONTEXT_LENGTH = {"darkroom": 80}
 _PLAN_HORIZON = {"darkroom": 8}
-# The paper's PPO (n_steps, batch_size, n_epochs) per gridworld (DESIGN.md 3).
+# The paper's PPO (n_steps, batch_size, n_epochs) per gridworld (docs/design.md 3).
 _PPO = {
     "darkroom": (20, 50, 20),
     "darkroom-permuted": (50, 50, 20),

@@ -1,4 +1,4 @@
-"""Meta-World ML1 tasks (paper appendix "Environmental Setup"; DESIGN.md section 2).
+"""Meta-World ML1 tasks (paper appendix "Environmental Setup"; docs/design.md section 2).
 
 We use the classic API, ``metaworld.ML1(name, seed)`` + ``env.set_task(task)``: the goal is hidden
 from the observation and stays fixed across resets.  ``gymnasium.make('Meta-World/MT1', ...)``
@@ -172,7 +172,7 @@ for _name in ML1_TASKS:
             seeded_tasks=True,
             extra="metaworld",
             context_length=1000,  # (ref) ten episodes of 100 steps
-            ppo=(100, 200, 20),  # DESIGN.md 3
+            ppo=(100, 200, 20),  # docs/design.md 3
             describe_task=_describe,
             extra_packages=("metaworld", "mujoco"),
             reports_success=True,

@@ -39,10 +39,10 @@ class EnvSpec:
         depends on the seed.
     extra: optional dependency group needed to build the env (``pip install 'lhf_hf[extra]'``).
     context_length: default model context in transitions *(ref)*: darkroom 80, the other gridworlds
-        200, Meta-World 1000 (DESIGN.md 6).
-    plan_horizon: DICP beam-search depth *(ref)*: darkroom 8, the other gridworlds 16 (DESIGN.md 7;
+        200, Meta-World 1000 (docs/design.md 6).
+    plan_horizon: DICP beam-search depth *(ref)*: darkroom 8, the other gridworlds 16 (docs/design.md 7;
         Meta-World plans greedily one step ahead and ignores it).
-    ppo: the paper's PPO ``(n_steps, batch_size, n_epochs)`` for this env (DESIGN.md 3).
+    ppo: the paper's PPO ``(n_steps, batch_size, n_epochs)`` for this env (docs/design.md 3).
     batched: ``batched(tasks) -> core``: a numpy core stepping one copy per task at once (``reset``,
         ``step``, ``optimal_action``; see ``BatchedGridworld``), or None.  With it the batched PPO
         collector and lockstep evaluation run on this env; without it, one gymnasium env per task.

@@ -1,4 +1,4 @@
-"""The model's sliding context during a rollout (DESIGN.md 7): sliding-window attention over the
+"""The model's sliding context during a rollout (docs/design.md 7): sliding-window attention over the
 stream of tokens, kept as a KV cache or recomputed.
 
 Semantics.  A rollout is one stream of tokens (DICP: a query-action token ``Q`` after every

@@ -1,4 +1,4 @@
-"""DICP planning (paper appendix "DICP"; DESIGN.md 7): the planner takes the model as an argument.
+"""DICP planning (paper appendix "DICP"; docs/design.md 7): the planner takes the model as an argument.
 
 Imagined paths are a *tree* of tokens appended to the rollout's cached context: query-action tokens
 ``Q(s, a)`` and imagined transition tokens ``T(s, a, r_hat, s_hat)``, the token sequence of training.

@@ -1,4 +1,4 @@
-"""In-context rollouts (paper Algorithm 2, "Test"; DESIGN.md 7).
+"""In-context rollouts (paper Algorithm 2, "Test"; docs/design.md 7).
 
 All tasks of a batch run in lockstep from an empty context; actions are sampled from the model's
 policy (or chosen by the DICP planner once the context is full); the context slides over the last K

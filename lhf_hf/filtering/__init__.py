@@ -1,4 +1,4 @@
-"""Learning history filtering (paper section 4, Algorithm 1; DESIGN.md section 5)."""
+"""Learning history filtering (paper section 4, Algorithm 1; docs/design.md section 5)."""
 
 from .materialize import apply_selection, filter_frames, materialize
 from .resample import algorithm1

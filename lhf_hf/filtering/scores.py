@@ -7,7 +7,7 @@ For a history with episode returns R_1..R_E in a task whose maximal return is R_
     U           = Improvement + lambda * Stability
 
 The reference code yields NaN for Stability when no successive difference is negative (the mean
-of an empty set); we define it as 1 (no degradation at all), as DESIGN.md section 5 fixes.
+of an empty set); we define it as 1 (no degradation at all), as docs/design.md section 5 fixes.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Write learning histories in the LeRobot v3.0 layout plus the lhf extension (DESIGN.md 4).
+"""Write learning histories in the LeRobot v3.0 layout plus the lhf extension (docs/design.md 4).
 
 A dataset is written task by task.  Task at position p (tasks sorted by index) goes to data file p
 (``data/chunk-{p // 1000}/file-{p % 1000}.parquet``) with global indices computed from p, so tasks

@@ -1,4 +1,4 @@
-"""``ICRLConfig``: one LlamaConfig-based configuration for AD, DPT and DICP (DESIGN.md 6).
+"""``ICRLConfig``: one LlamaConfig-based configuration for AD, DPT and DICP (docs/design.md 6).
 
 The backbone is ``transformers.LlamaModel`` fed through ``inputs_embeds``; this config adds what the
 ICRL model around it needs: the objective, the environment's state and action spaces, the context

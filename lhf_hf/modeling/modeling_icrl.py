@@ -1,4 +1,4 @@
-"""ICRL transformer for AD, DPT and DICP: token embedders and heads around ``LlamaModel`` (DESIGN.md 6).
+"""ICRL transformer for AD, DPT and DICP: token embedders and heads around ``LlamaModel`` (docs/design.md 6).
 
 Token layout (one token per transition, state first).  Token ``j`` of a window embeds
 
@@ -84,7 +84,7 @@ class ICRLOutput(ModelOutput):
 class ICRLPreTrainedModel(LlamaPreTrainedModel):
     config_class = ICRLConfig
     base_model_prefix = "icrl"
-    # Trainer must not rescale our (already averaged) loss by the number of processes (DESIGN.md 6).
+    # Trainer must not rescale our (already averaged) loss by the number of processes (docs/design.md 6).
     accepts_loss_kwargs = False
 
 

@@ -1,6 +1,6 @@
 """One collator per objective: window items -> exactly the named tensors ``ICRLModel.forward`` takes.
 
-All collators cut the same inputs (DESIGN.md 6, token layout in ``modeling_icrl``); they differ in
+All collators cut the same inputs (docs/design.md 6, token layout in ``modeling_icrl``); they differ in
 their labels:
 - AD: the source's action at each labelled position (paper eq. "AD");
 - DPT: the oracle's optimal action of each position's state (paper eq. "DPT", every prefix);

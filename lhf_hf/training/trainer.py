@@ -1,4 +1,4 @@
-"""``train(cfg)``: pretrain an AD / DPT / DICP model with ``transformers.Trainer`` (DESIGN.md 6).
+"""``train(cfg)``: pretrain an AD / DPT / DICP model with ``transformers.Trainer`` (docs/design.md 6).
 
 Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the committed
 ``training/accelerate/cpu_2proc.yaml``): the global batch is split across processes and the model's

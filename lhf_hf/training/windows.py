@@ -1,6 +1,6 @@
 """Training windows: numpy arrays loaded once from a history dataset, windows cut at any offset.
 
-A window is ``K`` consecutive transitions of one learning history (DESIGN.md 6).  ``WindowDataset``
+A window is ``K`` consecutive transitions of one learning history (docs/design.md 6).  ``WindowDataset``
 indexes every (history copy, offset) pair, so drawing items uniformly draws each history with the
 multiplicity an LHF selection gave it (paper Algorithm 2, "Sample (C, s_q, a_l) from D_LHF").
 Items are just start rows; the collators (``collators.py``) cut the windows from the arrays with one

@@ -1,4 +1,4 @@
-"""Hub access (DESIGN.md 4 and 8), knowing no artifact kind: repo ids, ``resolve`` (repo id -> local
+"""Hub access (docs/design.md 4 and 8), knowing no artifact kind: repo ids, ``resolve`` (repo id -> local
 folder), provenance, and ``push_folder`` (a folder as ONE commit, plus an optional tag).
 
 ``push_folder`` uploads a folder as one commit (the Hub applies a commit all-or-nothing, so a failed

@@ -60,6 +60,7 @@ def test_contradicting_flags_are_errors_before_any_work(
     assert not (tmp_path / "out").exists() and not (tmp_path / "work").exists()
 
 
+@pytest.mark.slow
 def test_bad_inputs_are_one_line_errors_and_nothing_is_written(bench, monkeypatch, data, tmp_path):
     common = [*TINY, "--steps", "2"]
     with pytest.raises(SystemExit, match="no dataset at"):
@@ -88,6 +89,7 @@ def test_bad_inputs_are_one_line_errors_and_nothing_is_written(bench, monkeypatc
     assert not any((tmp_path / "work").glob("*")) if (tmp_path / "work").exists() else True
 
 
+@pytest.mark.slow
 def test_a_wall_clock_run_records_a_command_that_resumes(bench, monkeypatch, data, tmp_path):
     out, work = tmp_path / "curve", tmp_path / "work"
     flags = [*TINY, "--minutes", "0.01", "--every", "0.01", "--seeds", "0",

@@ -8,6 +8,7 @@ import torch
 from lhf_hf.cli.main import main
 
 
+@pytest.mark.slow
 def test_collect_and_derive(tmp_path, capsys):
     out = tmp_path / "d"
     args = [
@@ -74,6 +75,7 @@ def test_batched_options_reach_the_dataset(tmp_path, capsys):
         assert not (tmp_path / "g").exists()
 
 
+@pytest.mark.slow
 def test_killed_collection_leaves_no_worker_running(tmp_path):
     """kill -9 of `lhf collect --workers 2`: its SB3 worker processes exit too (no orphans that
     finish the queued tasks into the folder)."""

@@ -11,6 +11,7 @@ from lhf_hf.cli.main import main
 from lhf_hf.envs import list_env_ids
 
 
+@pytest.mark.slow
 def test_console_script_json():
     exe = shutil.which("lhf") or f"{sys.executable} -m lhf_hf"
     out = subprocess.run(
@@ -36,6 +37,7 @@ def test_table(capsys):
     assert "6233/328" in out and "13..20 (mean 16.54)" in out
 
 
+@pytest.mark.slow
 def test_oracle_json(capsys):
     pytest.importorskip("metaworld")
     assert main(["envs", "--json", "--oracle", "--metaworld-tasks", "1"]) == 0

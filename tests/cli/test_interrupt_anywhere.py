@@ -11,6 +11,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from lhf_hf.cli.main import main
 from lhf_hf.verify import verify
 from tests.trees import tree_digest
@@ -29,6 +31,7 @@ def _interrupt(cmd: list[str], delay: float, cwd) -> tuple[int, str]:
     return p.returncode, err
 
 
+@pytest.mark.slow
 def test_filter_with_materialize_stays_a_pair(small_darkroom_batched, tmp_path):
     data = small_darkroom_batched.root  # only read: no private copy needed
     sel, mat = tmp_path / "sel", tmp_path / "mat"
@@ -61,6 +64,7 @@ def test_filter_with_materialize_stays_a_pair(small_darkroom_batched, tmp_path):
     assert "old" in seen  # the early interrupts at least hit the run
 
 
+@pytest.mark.slow
 def test_evaluate_keeps_results_and_card_entry_together(small_darkroom_batched, tmp_path):
     model, ev = tmp_path / "m", tmp_path / "m" / "eval"
     train = ["train", "--dataset", str(small_darkroom_batched.root), "--objective", "ad",

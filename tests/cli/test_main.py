@@ -99,6 +99,7 @@ def test_an_interrupt_a_library_wrapped_is_still_an_interrupt(
     assert f"lhf envs: {word}" in err and "Could not import" not in err
 
 
+@pytest.mark.slow
 def test_a_closed_pipe_ends_quietly(tmp_path):
     """`lhf envs --json | head -1`: no BrokenPipeError traceback, the status of a SIGPIPE."""
     import subprocess
@@ -111,6 +112,7 @@ def test_a_closed_pipe_ends_quietly(tmp_path):
     assert p.returncode == 128 + signal.SIGPIPE and "Traceback" not in p.stderr, p.stderr
 
 
+@pytest.mark.slow
 def test_a_file_missing_a_field_is_named_as_such(small_darkroom, tmp_path, capsys):
     import json
 

@@ -50,6 +50,7 @@ def test_filter_and_derive_never_replace_their_source(data, tmp_path, capsys):
     assert tree_digest(data) == before
 
 
+@pytest.mark.slow
 def test_existing_outputs_need_overwrite(data, tmp_path, capsys):
     # a folder with someone's README: filter neither writes into it nor replaces it
     mine = tmp_path / "mine"
@@ -131,6 +132,7 @@ def test_an_existing_materialize_folder_names_only_flags_filter_has(data, tmp_pa
     assert "pass --overwrite to replace it" in err and "--resume" not in err
 
 
+@pytest.mark.slow
 def test_sigterm_during_overwrite_puts_the_old_model_back(data, tmp_path):
     """kill -TERM (what `timeout` and `docker stop` send) cleans up like Ctrl-C."""
     import os

@@ -23,6 +23,7 @@ def cache(tmp_path, monkeypatch):
     native.load.cache_clear()
 
 
+@pytest.mark.slow
 def test_the_verdict_is_measured_once_cached_and_honoured(cache, monkeypatch):
     v = backend_verdict.verdict(2, 5)
     assert not v["cached"] and v["kernel_ms"] > 0 and v["torch_ms"] > 0
@@ -51,6 +52,7 @@ def test_the_verdict_is_measured_once_cached_and_honoured(cache, monkeypatch):
     assert len(list(cache.glob("verdict-*.json"))) == 2
 
 
+@pytest.mark.slow
 def test_the_collection_records_where_it_ran(cache, tmp_path):
     from lhf_hf.collection import collect
 

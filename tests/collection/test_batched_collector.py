@@ -12,6 +12,7 @@ CFG = dict(
 )
 
 
+@pytest.mark.slow
 def test_same_seed_same_data_and_chunks_matter(tmp_path):
     # 3 writer threads vs writing in this thread: the same files
     a = collect(CollectConfig(**CFG, workers=3), tmp_path / "a", progress=False)
@@ -22,6 +23,7 @@ def test_same_seed_same_data_and_chunks_matter(tmp_path):
     assert c.fingerprint != a.fingerprint  # documented: a chunk's random stream depends on its size
 
 
+@pytest.mark.slow
 def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     # --resume with nothing to resume starts the collection, and says so
     full = collect(CollectConfig(**CFG), tmp_path / "full", resume=True, progress=False)
@@ -46,6 +48,7 @@ def test_resume_redoes_whole_chunks_identically(tmp_path, capsys):
     assert "resuming, 2 of 3 task(s) already committed" in err and "held no collection" not in err
 
 
+@pytest.mark.slow
 def test_background_writer_error_surfaces_and_resume_completes(tmp_path, monkeypatch):
     """Chunks are written in the background while the next one collects: a failed write is raised
     (not swallowed), the tasks already committed stay, and --resume completes the same dataset."""
@@ -101,6 +104,7 @@ def test_default_chunk_bounds_memory():
     assert cfg.tasks_per_chunk == 500  # 50M transitions per chunk
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["torch", "kernel"])
 def test_the_thread_count_does_not_change_the_data(tmp_path, backend):
     # LAPACK's QR (the orthogonal initialisation) rounded differently at 1 and 2 threads, and PPO

@@ -20,6 +20,7 @@ def test_band_is_a_prediction_interval():
     "env_id, tasks, steps",
     [("darkroom", [10, 30, 50, 70], 300), ("dark-key-to-door", [100, 2000, 4000, 6000], 500)],
 )
+@pytest.mark.slow
 def test_batched_within_sb3_spread(env_id, tasks, steps):
     c = compare(env_id, tasks, histories=16, steps=steps, sb3_seeds=[0, 1, 2, 3], batched_seeds=[0])
     assert c.inside.all(), c.report()

@@ -12,6 +12,7 @@ def _fresh_python(code: str) -> str:
     return out.stdout.strip()
 
 
+@pytest.mark.slow
 def test_batched_ppo_imports_without_sb3_or_datasets():
     code = (
         "import sys; import lhf_hf.collection.ppo_backends; "
@@ -33,6 +34,7 @@ def test_lazy_exports_are_the_functions():
         col.nothing_here  # noqa: B018
 
 
+@pytest.mark.slow
 def test_exports_stay_the_functions_when_their_modules_are_imported_first():
     """Importing an export's defining module on its own first (to patch it, say) must not turn the
     package attribute into a module: with ``collect`` defined in ``collection/collect.py`` the CLI

@@ -1,4 +1,4 @@
-"""Invariants of real collected data (issue: collection; DESIGN.md sections 3-4)."""
+"""Invariants of real collected data (issue: collection; docs/design.md sections 3-4)."""
 
 import numpy as np
 import pyarrow.parquet as pq

@@ -25,6 +25,7 @@ def kernel_tanh(x: torch.Tensor) -> torch.Tensor:
     return y
 
 
+@pytest.mark.slow
 def test_build_is_cached(tmp_path, monkeypatch):
     monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
     native.build.cache_clear()
@@ -39,6 +40,7 @@ def test_build_is_cached(tmp_path, monkeypatch):
         native.build.cache_clear()
 
 
+@pytest.mark.slow
 def test_the_kernel_cache_loads_only_what_it_built(tmp_path, monkeypatch):
     """A foreign, corrupt or truncated library under the cached name is rebuilt, never loaded;
     the cache must be private; the key covers what -march=native means on this CPU."""
@@ -107,6 +109,7 @@ def _cpu_flags() -> set[str]:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not {"avx2", "fma"} <= _cpu_flags(), reason="needs a CPU with AVX2 and FMA")
 def test_the_avx2_path_matches_torch_as_the_native_one(tmp_path, monkeypatch):
     """The code path of an AVX2-only CPU (8-float vectors, 4 x 2 register blocks), built here with
@@ -165,6 +168,7 @@ def _update(gradients, L=3, N=200, epochs=2, batch=25, permutations=None, seed=5
     return policy, opt
 
 
+@pytest.mark.slow
 def test_kernel_equals_torch_update_over_many_steps():
     """Same permutations: two epochs of 8 minibatch steps (incl. a last, shorter minibatch: 200 = 8 x
     24 + 8) stay within float rounding of the torch path, and the Adam state matches too."""
@@ -251,6 +255,7 @@ def test_no_compiler_is_a_clear_error_and_auto_falls_back(tmp_path, monkeypatch,
         native.load.cache_clear()
 
 
+@pytest.mark.slow
 def test_collect_config_ppo_backend(monkeypatch, tmp_path):
     from lhf_hf.collection.batched_collector import resolve_ppo_backend
     from lhf_hf.configs import CollectConfig

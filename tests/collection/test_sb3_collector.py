@@ -25,6 +25,7 @@ def test_plans_per_protocol():
     )
 
 
+@pytest.mark.slow
 def test_independent_learners_differ():
     th = collect_task_histories(
         CollectConfig(
@@ -36,6 +37,7 @@ def test_independent_learners_differ():
     assert not np.array_equal(th.actions[0], th.actions[1])
 
 
+@pytest.mark.slow
 def test_same_seed_same_data(tmp_path):
     cfg = dict(env_id="darkroom", tasks="12", histories=4, steps=100, protocol="noisy", workers=1)
     a = collect(CollectConfig(**cfg), tmp_path / "a", progress=False)
@@ -59,6 +61,7 @@ def test_ppo_histories_improve_on_darkroom(tmp_path):
     assert late > early + 4 and late > 2 * early, (early, late)
 
 
+@pytest.mark.slow
 @pytest.mark.metaworld
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_metaworld_collection(tmp_path, algo):

@@ -1,4 +1,4 @@
-"""Gridworld dynamics checked against hand-computed trajectories (paper appendix, DESIGN.md 2)."""
+"""Gridworld dynamics checked against hand-computed trajectories (paper appendix, docs/design.md 2)."""
 
 import itertools
 

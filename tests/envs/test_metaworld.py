@@ -34,6 +34,7 @@ def test_episode_truncates_at_100_and_goal_is_hidden(name):
         env.step(np.zeros(4, dtype=np.float32))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["reach", "push", "door-unlock"])
 def test_goal_fixed_across_resets_and_different_across_tasks(name):
     env_id = f"metaworld-{name}"
@@ -52,6 +53,7 @@ def test_goal_fixed_across_resets_and_different_across_tasks(name):
     assert len({tuple(g.round(6)) for g in goals}) == 4
 
 
+@pytest.mark.slow
 def test_split_seed_changes_goals():
     a, b = make("metaworld-reach", 0, split_seed=0), make("metaworld-reach", 0, split_seed=1)
     a.reset(), b.reset()

@@ -18,6 +18,7 @@ def _model(objective: str, layers: int, context: int) -> ICRLModel:
     return ICRLModel(cfg).eval()
 
 
+@pytest.mark.slow
 @torch.no_grad()
 @pytest.mark.parametrize("engine", ["lean", "hf"])
 @pytest.mark.parametrize("objective", ["ad", "dicp"])

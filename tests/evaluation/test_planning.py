@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from lhf_hf.evaluation import Context, beam_search, greedy_search
@@ -251,9 +252,7 @@ def _dicp_model(layers, context):
     return model
 
 
-import pytest  # noqa: E402
-
-
+@pytest.mark.slow
 @pytest.mark.parametrize("layers, context, steps", [(1, 4, 12), (2, 12, 6)])
 def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps):
     """The shared-context tree (one backbone call per depth) gives the per-candidate recompute's
@@ -280,6 +279,7 @@ def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps)
         )
 
 
+@pytest.mark.slow
 def test_tree_beam_search_on_the_cache_is_exact_at_depth():
     """The rollout's default: the KV cache after many evictions, three layers.  Every candidate's
     reward and the policy at every imagined state must equal one forward over the whole stream (the
@@ -323,6 +323,7 @@ def test_tree_beam_search_on_the_cache_is_exact_at_depth():
         assert abs(float(got_score[0]) - want_score) < 1e-4, (horizon, beams)
 
 
+@pytest.mark.slow
 def test_the_planner_with_true_dynamics_is_near_optimal():
     """Oracle dynamics (the env's own reward and next state inside the beam search, the policy of
     an untrained DICP model ordering ties): the planner's machinery alone must walk straight to
@@ -349,6 +350,7 @@ def test_the_planner_with_true_dynamics_is_near_optimal():
                 progress=False, plan_dynamics="oracle")  # fmt: skip
 
 
+@pytest.mark.slow
 def test_tied_rewards_make_the_planned_action_a_policy_sample():
     """Reward classes predicting 0 everywhere (all paths tie): with the sampled depth-0 order (the
     reference's) the first action is a draw from the policy, by frequency; with ``argmax`` it is

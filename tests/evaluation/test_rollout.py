@@ -48,6 +48,7 @@ def actions(model, episodes, context, plan=False, seed=3):
     return r
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
 def test_cache_and_recompute_take_identical_actions_paper_depth(objective):
     """Four layers (the paper's depth), 100 steps through a window of 10 transitions: the sliding KV
@@ -59,6 +60,7 @@ def test_cache_and_recompute_take_identical_actions_paper_depth(objective):
     np.testing.assert_array_equal(a.returns, b.returns)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
 def test_window_protocol_equals_the_cache_for_one_layer_and_until_the_window_fills(objective):
     one = darkroom_model(objective, layers=1, context=10)
@@ -70,6 +72,7 @@ def test_window_protocol_equals_the_cache_for_one_layer_and_until_the_window_fil
     np.testing.assert_array_equal(a.actions[:, :30], b.actions[:, :30])
 
 
+@pytest.mark.slow
 def test_planning_starts_once_the_context_is_full():
     model = darkroom_model("dicp", layers=1, context=10)
     r = actions(model, 2, "cache", plan=True)
@@ -81,6 +84,7 @@ def test_planning_starts_once_the_context_is_full():
     np.testing.assert_array_equal(a.actions, b.actions)  # exact at depth: the same function
 
 
+@pytest.mark.slow
 def test_reward_gate_plans_only_for_tasks_that_have_seen_a_reward():
     """``plan_gate="reward_seen"``: a task whose context never held a reward acts on the policy's
     own samples (the planner draws from its own generator, so such a task takes exactly the
@@ -119,6 +123,7 @@ def test_same_seed_same_rollout_other_seed_differs():
     assert not np.array_equal(a.actions, c.actions)
 
 
+@pytest.mark.slow
 def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     from lhf_hf.training.card import write_model_card
 
@@ -334,6 +339,7 @@ def test_compare_errors(tmp_path):
     assert np.isclose(r["rows"][0]["E"], 2 / 1.5 - 1)
 
 
+@pytest.mark.slow
 def test_cli_evaluate_and_compare(tmp_path, capsys):
     darkroom_model("ad").save_pretrained(tmp_path / "m")
     assert (
@@ -382,6 +388,7 @@ def test_cli_evaluate_and_compare(tmp_path, capsys):
     assert cache["returns"] == recompute["returns"] and cache["engine"] == "lean"  # one function
 
 
+@pytest.mark.slow
 @pytest.mark.metaworld
 def test_metaworld_rollout_with_greedy_planning():
     pytest.importorskip("metaworld")

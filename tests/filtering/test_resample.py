@@ -67,6 +67,7 @@ returns_strategy = st.integers(1, 6).flatmap(
     lam=st.sampled_from([0.0, 0.5, 1.0, 2.0]),
     seed=st.integers(0, 3),
 )
+@pytest.mark.slow
 def test_resample_properties(spec, strategy, lam, seed):
     returns = {
         t: np.random.default_rng(s).integers(0, 20, (n, e)).astype(float)

@@ -149,6 +149,7 @@ def test_cli_bad_input_writes_nothing(small_darkroom, tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("when", ["after the selection's last write", "in materialize's writes"])
 def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
     small_darkroom, tmp_path, monkeypatch, capsys, when

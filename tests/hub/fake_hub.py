@@ -1,4 +1,4 @@
-"""A PROTOCOL FAKE of the Hugging Face Hub's write API, for the upload tests (DESIGN.md 8).
+"""A PROTOCOL FAKE of the Hugging Face Hub's write API, for the upload tests (docs/design.md 8).
 
 This is not the Hub and not a mock of ``huggingface_hub``: it is a small HTTP server on 127.0.0.1
 that answers the requests the real client library sends when it creates repos, commits files

@@ -85,6 +85,7 @@ def checkpoint(small_darkroom_batched, tmp_path_factory):
 
 
 # ---------------------------------------------------------------------------- datasets
+@pytest.mark.slow
 def test_history_dataset_round_trip(small_darkroom_batched, fake_hub, olah, hub_client, tmp_path):
     ds = small_darkroom_batched
     repo = "lhf-test/darkroom-small"
@@ -140,6 +141,7 @@ print(json.dumps(out))
     assert got["episodes"] == ds.episodes.num_rows
 
 
+@pytest.mark.slow
 def test_re_push_mirrors_the_folder_and_moves_the_tag(
     small_darkroom_batched, fake_hub, hub_client, tmp_path
 ):
@@ -164,6 +166,7 @@ def test_re_push_mirrors_the_folder_and_moves_the_tag(
 
 
 # ---------------------------------------------------------------------------- selection, checkpoint
+@pytest.mark.slow
 def test_selection_and_checkpoint_round_trip(
     small_darkroom_batched, checkpoint, fake_hub, olah, hub_client, tmp_path
 ):
@@ -234,6 +237,7 @@ print(json.dumps({{"counts": sel.counts(), "objective": m.config.objective}}))
     assert len(res["returns"]) == 1 and len(res["returns"][0]) == 2
 
 
+@pytest.mark.slow
 def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     repo = "lhf-test/trained-while-pushing"
     _ok(
@@ -257,6 +261,7 @@ def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_pat
 
 
 # ---------------------------------------------------------------------------- bad input
+@pytest.mark.slow
 def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     ds = str(small_darkroom_batched.root)
     _fails(
@@ -289,6 +294,7 @@ def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     assert _git(git_repo, "tag") == ""
 
 
+@pytest.mark.slow
 def test_load_errors(fake_hub, olah, hub_client):
     # A dataset repo that is not in our layout: a plain repo with a CSV.
     plain = fake_hub.repo_path("datasets", "lhf-test", "plain-csv")
@@ -352,6 +358,7 @@ def test_upload_file_selection(tmp_path):
     assert upload_files(tmp_path) == ["config.json", "meta/info.json", "model.safetensors"]
 
 
+@pytest.mark.slow
 def test_push_publishes_only_finished_unchanged_artifacts(
     small_darkroom_batched, fake_hub, hub_client, tmp_path
 ):
@@ -390,6 +397,7 @@ def test_push_publishes_only_finished_unchanged_artifacts(
         assert not fake_hub.repo_path("datasets", "lhf-test", name).exists()
 
 
+@pytest.mark.slow
 def test_a_changed_hub_copy_is_refused_at_load_and_by_verify(
     small_darkroom_batched, fake_hub, olah, hub_client, tmp_path
 ):
@@ -407,6 +415,7 @@ def test_a_changed_hub_copy_is_refused_at_load_and_by_verify(
     _fails(hub_client(olah, CLI, "verify", repo), "meta/stats.json: changed")
 
 
+@pytest.mark.slow
 def test_an_unreachable_hub_is_one_line(small_darkroom_batched, hub_client):
     proc = hub_client("http://127.0.0.1:9", CLI, "push", str(small_darkroom_batched.root),
                       "--repo-id", "lhf-test/unreachable")  # fmt: skip

@@ -222,6 +222,7 @@ def test_cached_forward_raises_no_deprecation(caplog):
     assert "deprecated" not in caplog.text
 
 
+@pytest.mark.slow
 def test_save_load_identical_outputs(tmp_path):
     config = grid_config("dicp")
     model = model_for(config)

@@ -36,6 +36,7 @@ def causal_bias(Lq, Lk, dtype=torch.float64):
     return torch.full((Lq, Lk), float("-inf"), dtype=dtype).triu_(Lk - Lq + 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("Lq, Lk", [(6, 6), (3, 7)])
 def test_forward_and_backward_match_autograd_of_the_formula(Lq, Lk):
     q, k, v = qkv(Lq=Lq, Lk=Lk)
@@ -127,6 +128,7 @@ def test_model_uses_it_by_default_and_matches_sdpa_without_dropout():
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
 def test_training_forward_matches_eager_llama_math(objective, monkeypatch):
     """Training mode with dropout: the model's loss and gradients equal the ones of the same model

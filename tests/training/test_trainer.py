@@ -34,6 +34,7 @@ def losses(out: Path) -> list[float]:
     return [r["loss"] for r in json.loads((out / "training_log.json").read_text()) if "loss" in r]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("objective", ["ad", "dpt", "dicp"])
 def test_each_objective_learns_and_saves_a_loadable_checkpoint(
     learned_darkroom, tmp_path, objective
@@ -61,6 +62,7 @@ def test_each_objective_learns_and_saves_a_loadable_checkpoint(
     assert (out / "training_loss.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     learned_darkroom, tmp_path
 ):
@@ -373,6 +375,7 @@ def test_two_accelerate_processes_report_the_one_process_losses(small_darkroom, 
     np.testing.assert_allclose(losses(tmp_path / "two"), losses(tmp_path / "one"), rtol=1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.metaworld
 @pytest.mark.parametrize("objective", ["ad", "dicp"])
 def test_continuous_actions_train_on_metaworld(tmp_path_factory, objective):
