@@ -22,11 +22,10 @@ from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.training.trainer import model_config_for, sequence_length
 from lhf_hf.utils.io import read_json
 
+from .parallel import IN_PROCESS
 from .stages import DONE_FILE, Cost, Stage, done_record
 
 REFERENCE = Path(__file__).resolve().parent / "rates.json"
-#: Kinds run one at a time in the scheduling process (``parallel.IN_PROCESS``).
-SEQUENTIAL = ("collect", "derive", "filter")
 
 
 def _key(kind: str, env: str, fields: tuple, train: TrainConfig | None = None) -> str:
@@ -131,8 +130,8 @@ def estimate(stages: list[Stage], work: str | Path, jobs: int = 1, reference=Non
                 missing.add(s.cost.key)
         rows.append(row)
     timed = [r for r in rows if r["seconds"] is not None]
-    alone = sum(r["seconds"] for r in timed if r["kind"] in SEQUENTIAL)
-    rest = [r["seconds"] for r in timed if r["kind"] not in SEQUENTIAL]
+    alone = sum(r["seconds"] for r in timed if r["kind"] in IN_PROCESS)
+    rest = [r["seconds"] for r in timed if r["kind"] not in IN_PROCESS]
     return {
         "jobs": jobs,
         "stages": rows,

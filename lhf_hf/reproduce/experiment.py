@@ -61,10 +61,8 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def _merge_train(top: dict, preset: dict) -> dict:
-    """``train`` = top level <- preset, where a preset's shared setting also replaces what the top
-    level set for one backbone (``by_objective``): the preset is the budget, so e.g. its
-    ``max_steps`` is not undercut by a spec-wide DICP value; the preset's own ``by_objective``
-    applies last (``by_objective: null`` there drops the top level's)."""
+    """top level <- preset, a preset's shared setting replacing the top level's ``by_objective``
+    one (the preset is the budget), its own ``by_objective`` last (null: drops the top's)."""
     out = _merge(top, preset)
     top_by, shared = top.get("by_objective"), set(preset) - {"by_objective"}
     if isinstance(top_by, dict) and "by_objective" in out and out["by_objective"] is not None:
@@ -197,9 +195,8 @@ class Experiment:
         return bool(self.collect.get("half", False))
 
     def _checked_filter_arms(self) -> list[tuple[str, FilterConfig]]:
-        """The arms of run 0, and every env's R_max known: the scores need each task's maximal
-        return, the env's optimal return (gridworlds) or ``filter.r_max`` (Meta-World), which
-        would otherwise fail only at the first filter stage, after the collection."""
+        """The arms of run 0, and every env's R_max known (else the first filter would fail,
+        after the collection)."""
         arms = self.filter_arms(0)
         for env in self.envs:
             if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
@@ -271,8 +268,7 @@ PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
 
 
 def train_settings(train: dict, objective: str) -> dict:
-    """One backbone's ``train`` settings: the shared ones, then its ``by_objective`` overrides
-    (``by_objective: null``: none).  Also reads a report's recorded ``train`` (index.py)."""
+    """One backbone's ``train`` settings: the shared ones, then its ``by_objective`` overrides."""
     settings = {k: v for k, v in train.items() if k != "by_objective"}
     settings.update((train.get("by_objective") or {}).get(objective) or {})
     return settings
@@ -283,8 +279,7 @@ def experiment_names() -> list[str]:
 
 
 def shadows_shipped(name: str, spec: str | None) -> bool:
-    """Whether a spec file outside the package (``spec``, its path as given) is named like a
-    shipped spec (``name``, its stem): the shipped table's default folder is not its own."""
+    """A spec file outside the package named like a shipped spec (no default report folder)."""
     return bool(spec) and spec != name and name in experiment_names()  # '': not recorded
 
 

@@ -3,7 +3,7 @@
 At this model size two 1-thread trainings finish 1.3x sooner than the same two one after the other
 with two threads (BENCHMARKS.md).  A training or evaluation starts, as a child process
 (``python -m lhf_hf.reproduce.worker``), as soon as the stages it reads are done; collections (which
-use every core through their own workers) run alone and first (``start_order``: in plan order a
+use every core through their own workers) run alone and first (in plan order a
 later run's collection held back everything after it), derivations and filters in this process.
 Each child writes ``stage.log`` in its stage folder and marks the stage done as the in-process
 runner does.  A failed stage stops new starts; the running ones finish and are kept.  The thread
@@ -36,16 +36,6 @@ def check_jobs(jobs) -> None:
         raise UserError(f"jobs must be an integer >= 1, got {jobs!r}")
 
 
-def can_start(stage: Stage, running: int, jobs: int) -> bool:
-    """A whole-machine stage only when no child runs, any other while a slot is free."""
-    return running == 0 if stage.kind in WHOLE_MACHINE else running < jobs
-
-
-def start_order(stages: Sequence[Stage]) -> list[Stage]:
-    """Collections (which read nothing) first, the rest in plan order."""
-    return sorted(stages, key=lambda s: s.kind not in WHOLE_MACHINE)
-
-
 def run_stages(
     stages: Sequence[Stage],
     runner: StageRunner,
@@ -65,7 +55,9 @@ def run_stages(
     for s in stages:
         if not s.done(work) and any(i.hash not in known for i in s.inputs):
             raise UserError(f"stage {s.label!r} reads stages that are not in the plan")
-    pending = start_order(stages)
+    # collections (which read nothing) first: in plan order a later run's collection, which waits
+    # for every running stage, held back everything after it
+    pending = sorted(stages, key=lambda s: s.kind not in WHOLE_MACHINE)
     running: dict[subprocess.Popen, tuple[Stage, float, object]] = {}
     finished: set[str] = set()
     failed: list[str] = []
@@ -82,7 +74,7 @@ def run_stages(
                     continue
                 if any(i.hash not in finished for i in stage.inputs):
                     continue  # an input is still running (or waiting)
-                if not can_start(stage, len(running), jobs):
+                if len(running) >= (1 if stage.kind in WHOLE_MACHINE else jobs):
                     break  # first come, first served: a whole-machine stage is not starved
                 pending.remove(stage)
                 if stage.kind in IN_PROCESS:
@@ -96,20 +88,12 @@ def run_stages(
                     finished.add(stage.hash)
                     continue
                 out = stage.path(work)
-                log = None
-                try:
-                    out.mkdir(parents=True, exist_ok=True)
-                    log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
-                    env = {**os.environ, **ONE_THREAD}
-                    child = subprocess.Popen(
-                        worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
-                    )
-                except OSError as exc:
-                    if log is not None:
-                        log.close()
-                    failed.append(f"{stage.kind} {stage.label}")
-                    runner.echo(f"[failed] {stage.kind:<8} {stage.label}: could not start: {exc}")
-                    break
+                out.mkdir(parents=True, exist_ok=True)
+                log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
+                env = {**os.environ, **ONE_THREAD}
+                child = subprocess.Popen(
+                    worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
+                )
                 runner.done += 1
                 head = f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label}"
                 runner.echo(f"{head} ... (process {child.pid}, 1 thread, log {out / LOG_FILE})")
@@ -137,11 +121,6 @@ def run_stages(
                         f"[failed] {stage.kind:<8} {stage.label} (exit {child.returncode}); "
                         f"the end of {out / LOG_FILE}:\n{_tail(out / LOG_FILE)}"
                     )
-                    if running:
-                        runner.echo(
-                            f"[lhf reproduce] no new stages; waiting for the {len(running)} "
-                            "running one(s) to finish (their results are kept)"
-                        )
     except BaseException:
         # Interrupted: each child is told once, here, with SIGTERM (a stage process ignores
         # Ctrl-C, ``worker.py``, so a held-down Ctrl-C cannot cut its cleanup short); what they
@@ -172,10 +151,7 @@ def run_stages(
 
 
 def _tail(path: Path, lines: int = 15) -> str:
-    try:
-        text = path.read_text(errors="replace").replace("\r", "\n")
-    except OSError as exc:
-        return f"(unreadable: {exc})"
+    text = path.read_text(errors="replace").replace("\r", "\n")  # progress bars: one line each
     kept = [ln for ln in text.splitlines() if ln.strip()][-lines:]
     return "\n".join("    " + ln for ln in kept)
 
