@@ -161,12 +161,10 @@ def reproduce(
     after them, a later full run reuses their stages).  import_from: exports (``portable.py``)
     copied into ``work`` first; what they hold is not run again.
     """
-    check_jobs(jobs)
-    work = check_work(work)
-    exp = load_experiment(name, preset, runs, objectives)
+    exp, work, stages, evals = _prepare(
+        name, preset, runs, work, jobs, objectives, import_from, echo
+    )
     out = Path(report_out(exp, out))
-    stages, evals = plan_stages(exp, work)
-    _import(import_from, work, stages, echo, exp)
     echo(
         f"[lhf reproduce] {exp.spec or exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
         f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
@@ -175,13 +173,20 @@ def reproduce(
     # the report is regenerated from the cache: an earlier one of ours is replaced (and put back
     # if this run fails); someone else's folder, or the cache itself, is refused
     with output_folder(out, "report", overwrite=True, inputs=[work], own_nested=["comparison"]):
-        command = None
-        if (
-            jobs > 1
-        ):  # the children plan from a copy: an edit of the spec meanwhile cannot reach them
-            spec = snapshot_spec(name, preset, runs, exp, work, objectives)
-            command = worker_command(spec, preset, exp.runs, work)
+        # the children plan from a copy: an edit of the spec meanwhile cannot reach them
+        spec = snapshot_spec(name, preset, runs, exp, work, objectives) if jobs > 1 else None
+        command = worker_command(spec, preset, exp.runs, work) if spec else None
         return _run(exp, stages, evals, work, out, echo, jobs, command)
+
+
+def _prepare(name, preset, runs, work, jobs, objectives, import_from, echo):
+    """The checked call's experiment, work folder and plan, the exports imported first."""
+    check_jobs(jobs)
+    work = check_work(work)
+    exp = load_experiment(name, preset, runs, objectives)
+    stages, evals = plan_stages(exp, work)
+    _import(import_from, work, stages, echo, exp)
+    return exp, work, stages, evals
 
 
 def report_out(exp: Experiment, out: str | Path | None) -> str | Path:
@@ -234,11 +239,9 @@ def estimate_experiment(
 ) -> str:
     """``--estimate``: the plan's stages, which are cached, and the time of the rest
     (``estimate.py``), as text; runs nothing but the imports."""
-    check_jobs(jobs)
-    work = check_work(work)
-    exp = load_experiment(name, preset, runs, objectives)
-    stages, evals = plan_stages(exp, work)
-    _import(import_from, work, stages, echo, exp)
+    exp, work, stages, evals = _prepare(
+        name, preset, runs, work, jobs, objectives, import_from, echo
+    )
     needed = needed_stages(stages, work, _targets(evals))
     left_out = len(stages) - len(needed)
     head = (
@@ -258,8 +261,7 @@ def export_experiment(name, dest, preset="quick", runs=None, work="runs/reproduc
                       out=None) -> dict:  # fmt: skip
     """``--export-stages DEST``: this plan's finished evaluations to ``DEST`` (``portable.py``);
     returns the counts and ``command``, the call that imports them and finishes the table."""
-    exp = load_experiment(name, preset, runs, objectives)
-    stages, _ = plan_stages(exp, check_work(work))
+    exp, work, stages, _ = _prepare(name, preset, runs, work, 1, objectives, None, None)
     about = {
         "experiment": exp.name, "preset": preset, "runs": exp.runs, "objectives": list(exp.objectives),
         "versions": library_versions(["transformers", "accelerate"]),
