@@ -13,6 +13,7 @@ the evaluations of this plan not done here (a copy beside, then a rename; ``stag
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -88,11 +89,16 @@ def check_export(src: str | Path) -> list[str]:
     problems = []
     for label, h, path, files in entries:
         folder = src / path
-        if path != f"evaluate/{str(h)[:12]}" or not folder.is_dir() or _files(folder) != files:
+        inside = re.fullmatch("[0-9a-f]{64}", str(h)) and path == f"evaluate/{h[:12]}"
+        if not inside or not folder.is_dir() or _files(folder) != files:  # paths: of the export
             problems.append(f"{src}: stage {label!r} ({path}) changed since it was exported")
             continue
-        done = read_json(folder / DONE_FILE)
-        if config_hash({"kind": "evaluate", **done.get("config", {})}) != h:
+        try:
+            config = read_json(folder / DONE_FILE)["config"]
+            matches = config_hash({"kind": "evaluate", **config}) == h
+        except (OSError, ValueError, KeyError, TypeError):  # no stage.json, or not a record
+            matches = False
+        if not matches:
             problems.append(f"{src}: stage {label!r} does not match its recorded config")
     return problems
 

@@ -182,9 +182,13 @@ def test_an_edited_or_malformed_export_is_refused_whole(exported, tmp_path):
         import_stages(src, work, plan)
     # an entry that would read outside the export, or another format
     good = json.loads((root / "carried" / INDEX_FILE).read_text())
-    (src / INDEX_FILE).write_text(json.dumps({**good, "stages": [{**second, "path": "../../etc"}]}))
-    with pytest.raises(ExportError, match="changed since it was exported"):
-        import_stages(src, work, plan)
+    for bad in (
+        {**second, "path": "../../etc"},
+        {**second, "hash": "../../../etc", "path": "evaluate/../../../etc"},
+    ):
+        (src / INDEX_FILE).write_text(json.dumps({**good, "stages": [bad]}))
+        with pytest.raises(ExportError, match="changed since it was exported"):
+            import_stages(src, work, plan)
     (src / INDEX_FILE).write_text(json.dumps({**good, "format": 7}))
     with pytest.raises(ExportError, match="format 7, this version reads 2"):
         import_stages(src, work, plan)
