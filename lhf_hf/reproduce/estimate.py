@@ -155,6 +155,7 @@ def render(est: dict, header: str) -> str:
             )
         lines.append(f"[{i}/{n}] {r['kind']:<8} {r['label']}: {what}")
     total = f"~{duration(est['wall_s'])} wall with --jobs {est['jobs']}"
+    total += f" ({duration(est['stage_s'])} of stage time)" if est["jobs"] > 1 else ""
     lower = "at least " if est["missing"] else ""
     lines += ["", f"{est['to_run']} of {n} stage(s) to run: {lower}{total}"]
     if est["missing"]:
