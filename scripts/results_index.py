@@ -4,7 +4,10 @@ ROOT, cell by cell, our E beside the paper's.
     python scripts/results_index.py [--root results] [--coverage {quick,cpu,paper,none}]
 
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
-to run (``lhf_hf/reproduce/coverage.py``); then every table.
+to run (``scripts/results_coverage.py``); then per table its command and budget, one row per env x
+arm x backbone with our E (+/- its std over paired runs, and its 95 % confidence interval), the
+paper's E, the verdict (``report.verdict``) and the whole-curve returns without and with LHF.
+Tables written before a field existed show ``-`` there.
 
 Exits 1 when ROOT is missing, empty, a file or one table's folder, 2 when some table's
 ``results.json`` could not be read (the index is still written, naming them).
@@ -13,10 +16,209 @@ Exits 1 when ROOT is missing, empty, a file or one table's folder, 2 when some t
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+from pathlib import Path
+from urllib.parse import quote
 
-from lhf_hf.reproduce.experiment import PRESETS
-from lhf_hf.reproduce.index import write_index
+from results_coverage import coverage as cells_of
+from results_coverage import recorded_number as _num
+from results_coverage import render_coverage
+
+from lhf_hf.errors import NotFoundError, UserError
+from lhf_hf.reproduce.experiment import PRESETS, shadows_shipped, train_settings
+from lhf_hf.reproduce.report import command_line, default_out, objective_of, percent, verdict
+from lhf_hf.utils.io import read_json, write_text_atomic
+
+INDEX_FILE = "README.md"
+
+
+def _pair(x) -> tuple[float, float] | None:
+    """A recorded interval ``[lo, hi]`` of finite floats, or None."""
+    if not isinstance(x, list | tuple) or len(x) != 2:
+        return None
+    lo, hi = _num(x[0]), _num(x[1])
+    return None if lo is None or hi is None else (lo, hi)
+
+
+def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
+    e, std = _num(r.get("E")), _num(r.get("E_std"))
+    lo, hi = _pair(r.get("E_ci95")) or (None, None)
+    p = _num((paper.get(env_id) or {}).get(objective_of(r["backbone"])))
+    diff_ci = _pair(r.get("diff_ci95"))
+    if e is None and diff_ci is None:  # E undefined (a baseline return of 0) or not recorded
+        judged = "undefined (no finite E)"
+    else:
+        interval = (lo, hi) if lo is not None and hi is not None else None
+        judged = verdict(math.nan if e is None else e, std, interval, diff_ci)
+        judged = judged.replace("|", "\\|")  # a pipe would end the table cell
+    returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
+    diff = _num(r.get("diff"))
+    paired = (
+        f" (difference {diff:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f})"
+        if diff is not None and diff_ci is not None
+        else ""
+    )
+    return (
+        f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
+        f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}"
+        f" | {'-' if p is None else f'{p:+.1f}'} | {judged}"
+        f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
+    )
+
+
+def _table(folder: Path, summary: dict) -> list[str]:
+    exp = summary["experiment"]
+    paper = exp.get("paper") or {}
+    title = exp.get("title", exp["name"])
+    report = folder / "report.md"
+    head = f"[{title}]({quote(folder.name)}/report.md)" if report.exists() else title
+    hours = _num(summary.get("stage_s"))
+    narrowed = exp["objectives"] if exp.get("narrowed") else None
+    # a table kept beside the command's default folder (another budget), or under a root that is
+    # not ``results/``: --out names it, relative to the folder that holds the root, as the default
+    # ``results/NAME`` is to the repository (``abspath``: a root given as ``.`` has no name; not
+    # ``resolve``, which would follow a symlinked ``results`` to wherever it points)
+    default = Path(default_out(exp["name"], exp["preset"], narrowed))
+    parent = Path(os.path.abspath(folder)).parent.name
+    own = (
+        (parent, folder.name) == (default.parent.name, default.name)
+        and not shadows_shipped(exp["name"], exp.get("spec"))
+    )  # fmt: skip
+    where = None if own else f"{parent}/{folder.name}"
+    # a custom spec is named by its path (``spec``; tables before it was recorded: the name)
+    facts = [
+        f"`{command_line(exp['name'], exp['preset'], exp['runs'], narrowed, where, exp.get('spec'))}`"
+    ]
+    facts += [f"{hours / 3600:.2f} h of stage time"] if hours else []
+    # A preset's budget changes over time (the cpu presets went from 50 to 100 histories per goal):
+    # the recorded sizes tell tables made by the same command line apart.
+    facts += _budget(exp)
+    facts += [str(summary["created"])] if summary.get("created") else []
+    lines = [
+        f"## {head}",
+        "",
+        "; ".join(facts) + ".",
+        "",
+        "| env | backbone | E (%) ± std | 95% CI | paper E (%) | verdict | return without -> with LHF |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    rows = 0
+    for cell in summary["cells"]:
+        label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
+        for r in cell["rows"]:
+            lines.append(_row(label, cell["env_id"], r, paper))
+            rows += 1
+    if not rows:
+        lines = lines[:-2] + ["No cells: the table compared nothing."]
+    return lines + _kept_line(summary.get("selections") or []) + [""]
+
+
+def _budget(exp: dict) -> list[str]:
+    """``["100 histories per goal", "3,000 training steps"]`` (``"ad 3,000 / dicp 4,000 training
+    steps"`` when the table's backbones differ) from the recorded experiment config; nothing for
+    what it does not hold."""
+    out = []
+    histories = (exp.get("collect") or {}).get("histories")
+    if isinstance(histories, int):
+        out.append(f"{histories} histories per goal")
+    train = exp.get("train") or {}
+    steps = {o: train_settings(train, o).get("max_steps") for o in exp.get("objectives") or []}
+    steps = {o: n for o, n in steps.items() if isinstance(n, int)}
+    if len(set(steps.values())) > 1:
+        out.append(" / ".join(f"{o} {n:,}" for o, n in steps.items()) + " training steps")
+    elif steps:
+        out.append(f"{next(iter(steps.values())):,} training steps")
+    return out
+
+
+def _kept_line(selections: list[dict]) -> list[str]:
+    """One line per env and arm: the mean return of the histories LHF kept vs rejected, averaged
+    over runs (tables made before the report recorded it have none)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for s in selections:
+        groups.setdefault((s["env_id"], s["arm"]), []).append(s)
+    out = []
+    for (env, arm), runs in groups.items():
+        kept = [_num(s.get("mean_return_selected_unique")) for s in runs]
+        rejected = [_num(s.get("mean_return_rejected")) for s in runs]
+        if None in kept:
+            continue
+        rej = [r for r in rejected if r is not None]
+        out.append(
+            f"LHF kept on {env}{'' if arm == 'lhf' else f' ({arm})'}: histories with mean return "
+            f"{sum(kept) / len(kept):.2f} vs {sum(rej) / len(rej):.2f} for those it rejected "
+            f"(mean over {len(runs)} run(s))."
+            if rej
+            else f"LHF kept every history on {env} ({len(runs)} run(s))."
+        )
+    return ["", *out] if out else []
+
+
+def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, list[str]]:
+    """The index of every ``*/results.json`` under ``root`` (one table each), as markdown, and the
+    names of the tables whose ``results.json`` could not be read (by the index, or by the coverage
+    when its settings or cells are malformed).  ``coverage``: a preset whose cells of every shipped
+    spec are listed first, done or not (``coverage.py``)."""
+    if not str(root).strip():  # '' would be the current folder
+        raise UserError("the results folder (--root) is empty: name it")
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"{root} is a file, not a results folder")
+    if not root.is_dir():
+        raise NotFoundError(f"no results folder {root}")
+    where = Path(os.path.abspath(root))  # not resolve(): a symlinked root keeps its name
+    if (root / "results.json").exists():  # its README.md would sit beside one table's report
+        raise UserError(
+            f"{root} is one table's folder (it holds results.json): give the folder that holds "
+            f"the tables, {where.parent}"
+        )
+    folders = sorted(p.parent for p in root.glob("*/results.json"))
+    lines = [
+        "# Reproduced tables",
+        "",
+        "Every table `lhf reproduce` wrote under this folder (`scripts/results_index.py` renders this "
+        "page from their `results.json`). E = (whole-curve mean return with LHF - without) / without, "
+        "the returns averaged over the runs; ± is the std of the per-run E over paired runs (same "
+        "seed and split), the interval the 95% confidence interval of the mean per-run E (Student "
+        "t; `-` for tables made before it was recorded). The verdict is the paired t-test on the "
+        "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
+        "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
+        "run's baseline return, so one weak baseline widens E's interval whatever the differences "
+        "are). Tables made before the differences were recorded are judged on E's interval, or on "
+        "|E| against its std before that."
+        + (
+            ""
+            if where.name == "results"
+            else f" The command lines run from the folder that holds `{where.name}/`."
+        ),
+        "",
+    ]
+    body: list[str] = []
+    if not folders:
+        body.append(f"No tables yet: `lhf reproduce EXPERIMENT --out {root}/NAME` writes one.")
+    bad = []
+    for folder in folders:
+        try:
+            body += _table(folder, read_json(folder / "results.json"))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            body += [f"## {folder.name}", "", f"`results.json` unreadable: {exc!r}", ""]
+            bad.append(folder.name)
+    if coverage is not None:  # the tables this index cannot read are not counted there either
+        cov = cells_of(root, coverage, unreadable=bad)
+        lines += render_coverage(cov)
+        bad += [name for name in cov["malformed_names"] if name not in bad]
+    lines += body
+    return "\n".join(lines).rstrip() + "\n", bad
+
+
+def write_index(root: str | Path, coverage: str | None = None) -> tuple[Path, list[str]]:
+    """Write ``root/README.md`` (atomically); return its path and the unreadable tables."""
+    text, bad = render_index(root, coverage)
+    path = Path(root) / INDEX_FILE
+    write_text_atomic(text, path)
+    return path, bad
 
 
 def main() -> int:

@@ -1,14 +1,9 @@
 """Experiment specs: ``lhf_hf/reproduce/experiments/NAME.yaml`` -> ``Experiment`` (one per paper table).
 
-A spec names the grid (envs x backbones), the data protocol, the LHF filter, the paper's relative
-enhancements E for that table, and budget presets.  A preset overrides the sizes (histories per task,
-training steps, model preset, evaluation episodes) and may narrow the grid; ``paper`` is the paper's
-sizes, ``cpu`` the largest that fits a couple of hours on 2 cores, ``quick`` CI-sized.
-
-The stage settings are fields of the configs the stages run (``CollectConfig``, ``FilterConfig``,
-``TrainConfig``, ``EvalConfig``): what a spec leaves out takes the config's own default (there is no
-second set of defaults here), and every config of every stage is built once at load, so a typo or a
-bad value in any stage is an error before anything runs.
+A spec names the grid (envs x backbones), the paper's E, and per stage (``collect``, ``filter``,
+``train``, ``evaluate``) fields of the config that stage runs; a preset (``quick`` / ``cpu`` /
+``paper``) overrides them.  What neither sets is the config's own default, and every config of
+every stage is built at load, so a typo or a bad value anywhere fails before anything runs.
 """
 
 from __future__ import annotations
@@ -34,19 +29,10 @@ EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
 SET_BY_RUN = {
     "collect": {"env_id", "seed", "split_seed"},
     "filter": {"seed"},
-    "train": {
-        "dataset",
-        "selection",
-        "out",
-        "objective",
-        "seed",
-        "resume",
-        "overwrite",
-        "push_to_hub",
-        "hub_private",
-    },  # fmt: skip
+    "train": {"dataset", "selection", "out", "objective", "seed", "resume", "overwrite",
+              "push_to_hub", "hub_private"},
     "evaluate": {"model", "out", "plan", "seed", "split_seed", "overwrite"},
-}
+}  # fmt: skip
 #: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
 #: how DICP is evaluated.
 STAGE_EXTRAS = {
@@ -75,10 +61,8 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def _merge_train(top: dict, preset: dict) -> dict:
-    """``train`` = top level <- preset, where a preset's shared setting also replaces what the top
-    level set for one backbone (``by_objective``): the preset is the budget, so e.g. its
-    ``max_steps`` is not undercut by a spec-wide DICP value; the preset's own ``by_objective``
-    applies last (``by_objective: null`` there drops the top level's)."""
+    """top level <- preset, a preset's shared setting replacing the top level's ``by_objective``
+    one (the preset is the budget), its own ``by_objective`` last (null: drops the top's)."""
     out = _merge(top, preset)
     top_by, shared = top.get("by_objective"), set(preset) - {"by_objective"}
     if isinstance(top_by, dict) and "by_objective" in out and out["by_objective"] is not None:
@@ -91,32 +75,26 @@ def _merge_train(top: dict, preset: dict) -> dict:
     return out
 
 
+def _check_keys(where: str, settings: dict, cls, stage: str, extras=frozenset()) -> None:
+    """Each key of ``settings`` is a field of ``cls`` that the run does not set (or an extra)."""
+    allowed = {f.name for f in dataclasses.fields(cls)} - SET_BY_RUN[stage]
+    if unknown := sorted(set(settings) - allowed - set(extras)):
+        raise UserError(f"{where}.{unknown[0]} is not a setting of this stage (one of "
+                        f"{sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})")  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Experiment:
     """One paper experiment at one budget preset (``load_experiment(name, preset)``).
 
-    name / title: the spec's file stem and a one-line description (the paper table it reproduces).
-    spec: what names it to ``lhf reproduce``: the name of a shipped spec, the path (as given) of
-        any other yaml, so a report's command line runs as written.
-    envs / objectives: the grid; every cell trains a baseline and an LHF model per run.
-    runs: independent runs; run r uses seed r and train/test split r (paper: 3).
-    collect: ``CollectConfig`` fields; the reproduction sets ``env_id``, ``seed`` and ``split_seed``
-        per run and collects the train split (``tasks: train``) unless the spec narrows it.
-        ``half: true`` trains on the first half of every history (``lhf derive half``).
-    filter: ``FilterConfig`` fields (``seed`` = the run); ``sweep: {key, values}`` makes one LHF arm
-        per value.
-    train: ``TrainConfig`` fields (the data, objective, output and ``seed`` are the run's);
-        ``by_objective: {objective: {field: value}}`` overrides them for one backbone (e.g. DICP's
-        learned dynamics need more steps than its policy before planning with them pays).
-    evaluate: ``EvalConfig`` fields (``seed`` = the run), and ``plan_dicp``: true evaluates DICP
-        with planning (the paper's protocol), false without, "both" both ways from the same
-        checkpoints, as two backbones "DICP" and "DICP + plan": with a small training budget the
-        learned dynamics can be too poor to plan with, and the model-free row shows whether the
-        policy itself learned.
-    paper: the paper's E in percent, ``{env: {objective: value}}`` (None where it has none).
-    budget: what the preset is, in words, against the paper's sizes (goes into the report).
-    narrowed: the objectives are a subset of the spec's (``load_experiment(objectives=...)``): the
-        stages are the full table's, so a later full run finds them cached.
+    spec: the name of a shipped spec, else the yaml's path as given (a report's command runs as
+        written).  runs: run r uses seed r and train/test split r.  collect / filter / train /
+        evaluate: fields of the stage's config, less what the run sets (``SET_BY_RUN``), plus
+        ``STAGE_EXTRAS``: ``half`` (train on each history's first half), a filter ``sweep: {key,
+        values}`` (one LHF arm per value), ``by_objective: {backbone: {field: value}}`` and
+        ``plan_dicp`` (true, false or "both": DICP evaluated with and without planning from the
+        same checkpoints).  paper: the paper's E in percent per env and backbone.  narrowed: the
+        objectives are a subset of the spec's, whose stages a later full run finds cached.
     """
 
     name: str
@@ -151,38 +129,24 @@ class Experiment:
                 f"got {self.evaluate['plan_dicp']!r}"
             )
         for stage, cls in CONFIGS.items():
-            settings = getattr(self, stage)
-            allowed = {f.name for f in dataclasses.fields(cls)} - SET_BY_RUN[stage]
-            unknown = set(settings) - allowed - STAGE_EXTRAS.get(stage, set())
-            if unknown:
-                raise UserError(
-                    f"{self.name}: {stage}.{sorted(unknown)[0]} is not a setting of this stage "
-                    f"(one of {sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})"
-                )
+            _check_keys(
+                f"{self.name}: {stage}", getattr(self, stage), cls, stage, STAGE_EXTRAS[stage]
+            )
         by_objective = self.train.get("by_objective") or {}  # null: none (a preset may cancel)
         if not isinstance(by_objective, dict):
-            raise UserError(
-                f"{self.name}: train.by_objective must map backbones ({', '.join(OBJECTIVES)}) "
-                f"to settings, got {by_objective!r}"
-            )
-        allowed = {f.name for f in dataclasses.fields(TrainConfig)} - SET_BY_RUN["train"]
+            raise UserError(f"{self.name}: train.by_objective must map backbones "
+                            f"({', '.join(OBJECTIVES)}) to settings, got {by_objective!r}")  # fmt: skip
         for objective, settings in by_objective.items():
+            where = f"{self.name}: train.by_objective.{objective}"
             if objective not in OBJECTIVES:
                 raise UserError(
-                    f"{self.name}: train.by_objective: {objective!r} is not a backbone "
-                    f"(one of {', '.join(OBJECTIVES)})"
+                    f"{where}: {objective!r} is not a backbone ({', '.join(OBJECTIVES)})"
                 )
             if not isinstance(settings, dict):
                 raise UserError(
-                    f"{self.name}: train.by_objective.{objective} must be a mapping of "
-                    f"TrainConfig settings, got {settings!r}"
+                    f"{where} must be a mapping of TrainConfig settings, got {settings!r}"
                 )
-            unknown = set(settings) - allowed
-            if unknown:
-                raise UserError(
-                    f"{self.name}: train.by_objective.{objective}.{sorted(unknown)[0]} is not a "
-                    f"setting of this stage (one of {sorted(allowed)})"
-                )
+            _check_keys(where, settings, TrainConfig, "train")
         sweep = self.filter.get("sweep")
         if sweep is not None and (
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
@@ -231,9 +195,8 @@ class Experiment:
         return bool(self.collect.get("half", False))
 
     def _checked_filter_arms(self) -> list[tuple[str, FilterConfig]]:
-        """The arms of run 0, and every env's R_max known: the scores need each task's maximal
-        return, the env's optimal return (gridworlds) or ``filter.r_max`` (Meta-World), which
-        would otherwise fail only at the first filter stage, after the collection."""
+        """The arms of run 0, and every env's R_max known (else the first filter would fail,
+        after the collection)."""
         arms = self.filter_arms(0)
         for env in self.envs:
             if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
@@ -305,8 +268,7 @@ PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
 
 
 def train_settings(train: dict, objective: str) -> dict:
-    """One backbone's ``train`` settings: the shared ones, then its ``by_objective`` overrides
-    (``by_objective: null``: none).  Also reads a report's recorded ``train`` (index.py)."""
+    """One backbone's ``train`` settings: the shared ones, then its ``by_objective`` overrides."""
     settings = {k: v for k, v in train.items() if k != "by_objective"}
     settings.update((train.get("by_objective") or {}).get(objective) or {})
     return settings
@@ -317,8 +279,7 @@ def experiment_names() -> list[str]:
 
 
 def shadows_shipped(name: str, spec: str | None) -> bool:
-    """Whether a spec file outside the package (``spec``, its path as given) is named like a
-    shipped spec (``name``, its stem): the shipped table's default folder is not its own."""
+    """A spec file outside the package named like a shipped spec (no default report folder)."""
     return bool(spec) and spec != name and name in experiment_names()  # '': not recorded
 
 

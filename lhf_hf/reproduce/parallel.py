@@ -1,20 +1,13 @@
-"""Independent stages side by side: ``lhf reproduce --jobs J`` runs up to J stages at once.
+"""``lhf reproduce --jobs J``: up to J stages at once, each in its own process with one thread.
 
-A model of this size keeps two cores only partly busy: two trainings with one thread each finish
-1.3x sooner than the same two one after the other with two threads each (BENCHMARKS.md, "Training
-throughput").  So with ``jobs > 1`` every training and evaluation runs in a child process
-(``python -m lhf_hf.reproduce.worker``) with one torch thread, as soon as the stages it reads are
-done.  Collections (which use every core through their own worker processes) run alone, and they,
-derivations and filters (a second of numpy) run in this process: a child costs ~5 s of imports.
-Collections start first (``start_order``): a collection waits for every running stage to end, so in
-plan order a later run's collection held back everything after it until the earlier runs' stages
-had ended (on 16 cores, 2 runs: the second run's trainings could not start beside the first's).
-Each child writes its output (progress bars included) to ``stage.log`` in its stage folder, and
-marks the stage done exactly as the in-process runner does, so the cache cannot tell the two apart.
-
-The thread count is not part of a stage's identity: one thread instead of two may change the float
-rounding of a trained model (not its seed, data or settings), as any machine with another core
-count would.  A failed stage stops new starts; the stages already running finish and are kept.
+At this model size two 1-thread trainings finish 1.3x sooner than the same two one after the other
+with two threads (BENCHMARKS.md).  A training or evaluation starts, as a child process
+(``python -m lhf_hf.reproduce.worker``), as soon as the stages it reads are done; collections (which
+use every core through their own workers) run alone and first (in plan order a
+later run's collection held back everything after it), derivations and filters in this process.
+Each child writes ``stage.log`` in its stage folder and marks the stage done as the in-process
+runner does.  A failed stage stops new starts; the running ones finish and are kept.  The thread
+count is not part of a stage's identity (it may change float rounding, as another machine would).
 """
 
 from __future__ import annotations
@@ -28,7 +21,7 @@ from pathlib import Path
 
 from lhf_hf.errors import UserError, UserRuntimeError
 
-from .stages import DONE_FILE, LOG_FILE, NO_RECORD, Stage, StageRunner
+from .stages import LOG_FILE, Stage, StageRunner
 
 #: Kinds of stage that use every core by themselves (collection: its own worker processes).
 WHOLE_MACHINE = {"collect"}
@@ -43,18 +36,6 @@ def check_jobs(jobs) -> None:
         raise UserError(f"jobs must be an integer >= 1, got {jobs!r}")
 
 
-def can_start(stage: Stage, running: int, jobs: int) -> bool:
-    """With ``running`` children of ``jobs``: a whole-machine stage only when none run, any
-    other while a slot is free (``estimate.schedule`` simulates the same rule)."""
-    return running == 0 if stage.kind in WHOLE_MACHINE else running < jobs
-
-
-def start_order(stages: Sequence[Stage]) -> list[Stage]:
-    """The order in which ``run_stages`` (``jobs > 1``) considers the stages: the whole-machine
-    ones (collections, which read nothing) first, the rest in plan order."""
-    return sorted(stages, key=lambda s: s.kind not in WHOLE_MACHINE)
-
-
 def run_stages(
     stages: Sequence[Stage],
     runner: StageRunner,
@@ -64,8 +45,7 @@ def run_stages(
 ) -> None:
     """Run ``stages`` (in dependency order) with ``runner``: in this process when ``jobs == 1``,
     else up to ``jobs`` child processes at once (``worker_command(stage)`` starts one)."""
-    if jobs < 1:
-        raise UserError(f"jobs must be >= 1, got {jobs}")
+    check_jobs(jobs)
     if jobs == 1:
         for stage in stages:
             runner.run(stage)
@@ -73,12 +53,11 @@ def run_stages(
     work = runner.work
     known = {s.hash for s in stages}
     for s in stages:
-        if s.done(work):
-            continue  # reported as cached: what it read may be left out (``needed_stages``)
-        missing = [i.label for i in s.inputs if i.hash not in known]
-        if missing:
-            raise UserError(f"stage {s.label!r} reads {missing}, which are not in the plan")
-    pending = start_order(stages)
+        if not s.done(work) and any(i.hash not in known for i in s.inputs):
+            raise UserError(f"stage {s.label!r} reads stages that are not in the plan")
+    # collections (which read nothing) first: in plan order a later run's collection, which waits
+    # for every running stage, held back everything after it
+    pending = sorted(stages, key=lambda s: s.kind not in WHOLE_MACHINE)
     running: dict[subprocess.Popen, tuple[Stage, float, object]] = {}
     finished: set[str] = set()
     failed: list[str] = []
@@ -95,7 +74,7 @@ def run_stages(
                     continue
                 if any(i.hash not in finished for i in stage.inputs):
                     continue  # an input is still running (or waiting)
-                if not can_start(stage, len(running), jobs):
+                if len(running) >= (1 if stage.kind in WHOLE_MACHINE else jobs):
                     break  # first come, first served: a whole-machine stage is not starved
                 pending.remove(stage)
                 if stage.kind in IN_PROCESS:
@@ -109,24 +88,14 @@ def run_stages(
                     finished.add(stage.hash)
                     continue
                 out = stage.path(work)
-                log = None
-                try:
-                    out.mkdir(parents=True, exist_ok=True)
-                    log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
-                    env = {**os.environ, **ONE_THREAD}
-                    child = subprocess.Popen(
-                        worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
-                    )
-                except OSError as exc:
-                    if log is not None:
-                        log.close()
-                    failed.append(f"{stage.kind} {stage.label}")
-                    runner.echo(f"[failed] {stage.kind:<8} {stage.label}: could not start: {exc}")
-                    break
+                out.mkdir(parents=True, exist_ok=True)
+                log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
+                env = {**os.environ, **ONE_THREAD}
+                child = subprocess.Popen(
+                    worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
+                )
                 runner.done += 1
                 head = f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label}"
-                if (out / DONE_FILE).exists():  # what the child's runner says, said here too
-                    runner.echo(f"{head}: {out / DONE_FILE} {NO_RECORD}")
                 runner.echo(f"{head} ... (process {child.pid}, 1 thread, log {out / LOG_FILE})")
                 running[child] = (stage, time.perf_counter(), log)
             if not running:
@@ -152,17 +121,10 @@ def run_stages(
                         f"[failed] {stage.kind:<8} {stage.label} (exit {child.returncode}); "
                         f"the end of {out / LOG_FILE}:\n{_tail(out / LOG_FILE)}"
                     )
-                    if running:
-                        runner.echo(
-                            f"[lhf reproduce] no new stages; waiting for the {len(running)} "
-                            "running one(s) to finish (their results are kept)"
-                        )
     except BaseException:
-        # Interrupted: let the children stop, keep what they wrote (training resumes from its
-        # checkpoints on the next call).  Each is told once, here, with SIGTERM: a SIGTERM
-        # (``kill``, ``timeout``) reached this process only, and Ctrl-C, which reaches the whole
-        # process group, a stage process leaves to this one (``reproduce.worker``), so that its
-        # cleanup is not cut short by the next press.
+        # Interrupted: each child is told once, here, with SIGTERM (a stage process ignores
+        # Ctrl-C, ``worker.py``, so a held-down Ctrl-C cannot cut its cleanup short); what they
+        # finished or saved is kept and resumes on the next call.
         for child in running:
             child.terminate()
         if running:
@@ -189,10 +151,7 @@ def run_stages(
 
 
 def _tail(path: Path, lines: int = 15) -> str:
-    try:
-        text = path.read_text(errors="replace").replace("\r", "\n")
-    except OSError as exc:
-        return f"(unreadable: {exc})"
+    text = path.read_text(errors="replace").replace("\r", "\n")  # progress bars: one line each
     kept = [ln for ln in text.splitlines() if ln.strip()][-lines:]
     return "\n".join("    " + ln for ln in kept)
 

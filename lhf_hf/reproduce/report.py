@@ -84,177 +84,132 @@ def command_line(
     return f"lhf reproduce {shlex.quote(spec or name)} --preset {preset} --runs {runs}{tail}"
 
 
-def _objective(backbone: str) -> str:
+def objective_of(backbone: str) -> str:
+    """``"DICP + plan"`` -> ``"dicp"``."""
     return backbone.split()[0].lower()
 
 
-def _pct(x: float | None) -> str:
+def percent(x: float | None) -> str:
     return "-" if x is None or not np.isfinite(x) else f"{100 * x:+.1f}"
 
 
 def _columns(exp: Experiment) -> list[str]:
     """The E table's backbone columns: one per objective, DICP once per planning mode."""
-    cols = []
-    for o in exp.objectives:
-        modes = exp.dicp_plan_modes() if o == "dicp" else (False,)
-        cols += [o.upper() + (" + plan" if plan else "") for plan in modes]
-    return cols
+    return [o.upper() + (" + plan" if plan else "") for o in exp.objectives
+            for plan in (exp.dicp_plan_modes() if o == "dicp" else (False,))]  # fmt: skip
 
 
-def _selection_lines(selections: list[dict]) -> list[str]:
-    """What LHF kept, per run: the histories it kept and rejected and their mean returns (each
-    history's mean over its episodes), the question being whether the selection is cleaner data."""
-    if not selections:
-        return []
-
-    def num(x) -> str:
-        return "-" if x is None else f"{x:.2f}"
-
-    lines = [
-        "",
-        "## What LHF kept",
-        "",
-        "Per run: histories kept (at least once) and rejected, and the mean return of each group "
-        "(a history's mean over its episodes); the last column weighs the kept ones by how often "
-        "the resampling drew them, i.e. the data the LHF model trained on.",
-        "",
-        "| env | arm | run | kept / rejected | source | kept | rejected | resampled |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for s in selections:
-        lines.append(
-            f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
-            f"| {num(s['mean_return_source'])} | {num(s['mean_return_selected_unique'])} "
-            f"| {num(s['mean_return_rejected'])} | {num(s['mean_return_selection'])} |"
-        )
-    return lines
+def _label(cell: dict) -> str:
+    return cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
 
 
-def _other_data_lines(other: list[dict]) -> list[str]:
-    """A warning: models trained on another draw of a collection than the one the selection
-    summary above describes (``reproduce._other_data``)."""
-    if not other:
-        return []
-    machines = sorted(
-        {
-            "{cpu}, {isa}".format(**{"cpu": "?", "isa": "?", **(o.get("here_machine") or {})})
-            for o in other
-        }
-    )
-    lines = [
-        "",
-        f"**Warning**: {len(other)} evaluation(s) are of models trained on other data than the "
-        "collection in this work folder, made from the same config (typically imported "
-        "evaluations: a collection made again on a CPU of another instruction set is another "
-        "draw, docs/histories.md). The selection summary above describes the collection here "
-        f"({', '.join(machines)}), not the data these models trained on:",
-        "",
-    ]
-    lines += [
-        f"- {o['stage']}: trained on {o['trained_on'][:12]}, here {o['here'][:12]}" for o in other
-    ]
-    return lines
+def _num(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
 
 
 def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
+    """``report.md``: the E table beside the paper's, a verdict per cell, the returns, what LHF
+    kept, the curves and the provenance (``results.json`` holds the same numbers)."""
     cols = _columns(exp)
+    narrowed = exp.objectives if exp.narrowed else None
     lines = [
         f"# {exp.title}",
         "",
-        f"`{command_line(exp.name, exp.preset, exp.runs, exp.objectives if exp.narrowed else None, str(out), exp.spec)}`: "
-        f"{exp.runs} run(s); run r uses seed r and train/test split r (a different set of unseen "
-        f"tasks per run). Paper: {exp.paper_table or '-'}.",
+        f"`{command_line(exp.name, exp.preset, exp.runs, narrowed, str(out), exp.spec)}`: "
+        f"{exp.runs} run(s); run r uses seed r and train/test split r. Paper: {exp.paper_table or '-'}.",
         "",
         f"**Budget** ({exp.preset}): {exp.budget or '-'}",
         "",
         "## Relative enhancement E (%) of LHF over each backbone",
         "",
-        "E = (mean return over the whole test curve with LHF - without) / without, the returns "
-        "averaged over runs; ± is the std of the per-run E over paired runs (same seed and split). "
-        "The verdicts below give the 95% confidence interval of the mean per-run E (Student t) and "
-        "judge on the paired t-test of the runs' return differences (LHF - baseline): an effect "
-        "counts when that difference's 95% interval excludes 0 (a per-run E divides by its run's "
-        "baseline return, so one weak baseline widens E's interval whatever the differences are). "
-        "Paper values in parentheses.",
+        "E = (mean return over the whole test curve with LHF - without) / without, averaged over "
+        "runs; ± is the std of the per-run E over paired runs (same seed and split); the paper's "
+        "in parentheses. The verdicts judge on the paired t-test of the runs' return differences "
+        "(LHF - baseline): an effect counts when their 95% interval excludes 0 (docs/reproduce.md).",
     ]
     if exp.dicp_plan_modes() == (False, True):
-        gated = exp.evaluate.get("plan_gate", "always") != "always"
-        lines += [
-            "",
-            "DICP is evaluated from the same checkpoints without planning (`DICP`) and with the "
-            + (
-                "paper's beam search, gated on an observed reward (`DICP + plan`: a task is "
-                "planned for only while its context holds a reward, else it acts on a policy "
-                "sample; a departure from the reference, docs/evaluation.md)"
-                if gated
-                else "paper's planning (`DICP + plan`)"
-            )
-            + "; the paper's DICP values are with planning.",
-        ]
-    lines += [
-        "",
-        "| env | " + " | ".join(cols) + " |",
-        "|---|" + "---|" * len(cols),
-    ]
+        lines += ["", "DICP is evaluated from the same checkpoints without planning (`DICP`) and "
+                  "with it (`DICP + plan`); the paper's DICP values are with planning."]  # fmt: skip
+    lines += ["", "| env | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     per_col: dict[str, list[float]] = {c: [] for c in cols}
     verdicts = []
     for cell in cells:
         rows = {r["backbone"]: r for r in cell["rows"]}
-        label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         entries = []
         for c in cols:
-            r = rows.get(c)
-            paper = (exp.paper.get(cell["env_id"]) or {}).get(_objective(c))
+            paper = (exp.paper.get(cell["env_id"]) or {}).get(objective_of(c))
             paper_s = f" ({paper:+.1f})" if paper is not None else ""
+            r = rows.get(c)
             if r is None:
                 entries.append("-" + paper_s)
                 continue
             std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
-            entries.append(f"{_pct(r['E'])}{std}{paper_s}")
+            entries.append(f"{percent(r['E'])}{std}{paper_s}")
             if r["E"] is not None:  # undefined where the baseline returned 0
                 per_col[c].append(r["E"])
-            verdicts.append((label, r))
-        lines.append(f"| {label} | " + " | ".join(entries) + " |")
-    avg = []
-    for c in cols:
-        paper = [(exp.paper.get(e) or {}).get(_objective(c)) for e in exp.envs]
-        paper = [p for p in paper if p is not None]
-        paper_s = f" ({np.mean(paper):+.1f})" if paper and len(exp.envs) > 1 else ""
-        avg.append((_pct(float(np.mean(per_col[c]))) if per_col[c] else "-") + paper_s)
+            verdicts.append((_label(cell), r))
+        lines.append(f"| {_label(cell)} | " + " | ".join(entries) + " |")
     if len(cells) > 1:
+        papers = {
+            c: [
+                p
+                for e in exp.envs
+                if (p := (exp.paper.get(e) or {}).get(objective_of(c))) is not None
+            ]
+            for c in cols
+        }
+        avg = [(percent(float(np.mean(per_col[c]))) if per_col[c] else "-")
+               + (f" ({np.mean(papers[c]):+.1f})" if papers[c] and len(exp.envs) > 1 else "")
+               for c in cols]  # fmt: skip
         lines.append("| average | " + " | ".join(avg) + " |")
     lines += ["", "## Where LHF helps, and where it does not", ""]
     for label, r in verdicts:
         ci, diff_ci = r.get("E_ci95"), r.get("diff_ci95")
-        facts = [f"95% CI of the per-run E: {_pct(ci[0])} .. {_pct(ci[1])}"] if ci else []
+        facts = [f"95% CI of the per-run E: {percent(ci[0])} .. {percent(ci[1])}"] if ci else []
         if diff_ci:
             facts.append(
                 f"paired return difference {r['diff']:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f}"
             )
         interval = f" ({'; '.join(facts)})" if facts else ""
         judged = verdict(r["E"], r["E_std"], ci, diff_ci)
-        lines.append(f"- {label}, {r['backbone']}: E {_pct(r['E'])}%{interval} -> {judged}")
+        lines.append(f"- {label}, {r['backbone']}: E {percent(r['E'])}%{interval} -> {judged}")
     lines += [
-        "",
-        "## Absolute returns",
-        "",
-        "Mean over runs of the whole-curve mean and of the last 10% of the episodes (end of the "
-        "curve). The paper publishes no returns in numbers (only E in its tables and the curves "
-        "of its figures), so there is none to set beside these.",
-        "",
+        "", "## Absolute returns", "",
+        "Mean over runs of the whole-curve mean and of the last 10% of the episodes (the paper "
+        "publishes no returns in numbers).", "",
         "| env | backbone | baseline mean | LHF mean | baseline end | LHF end | runs |",
         "|---|---|---|---|---|---|---|",
-    ]
+    ]  # fmt: skip
     for cell in cells:
-        label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
             lines.append(
-                f"| {label} | {r['backbone']} | {r['baseline_mean']:.2f} ± {r['baseline_std']:.2f} | "
+                f"| {_label(cell)} | {r['backbone']} | {r['baseline_mean']:.2f} ± {r['baseline_std']:.2f} | "
                 f"{r['lhf_mean']:.2f} ± {r['lhf_std']:.2f} | {r['baseline_final']:.2f} | "
                 f"{r['lhf_final']:.2f} | {r['runs_baseline']} |"
             )
-    lines += _selection_lines(summary.get("selections") or [])
-    lines += _other_data_lines(summary.get("other_data") or [])
+    if selections := summary.get("selections"):
+        lines += [
+            "", "## What LHF kept", "",
+            "Per run: histories kept (at least once) and rejected and each group's mean return; "
+            "`resampled` weighs the kept ones by how often the resampling drew them.", "",
+            "| env | arm | run | kept / rejected | source | kept | rejected | resampled |",
+            "|---|---|---|---|---|---|---|---|",
+        ]  # fmt: skip
+        lines += [
+            f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
+            f"| {_num(s['mean_return_source'])} | {_num(s['mean_return_selected_unique'])} "
+            f"| {_num(s['mean_return_rejected'])} | {_num(s['mean_return_selection'])} |"
+            for s in selections
+        ]
+    if other := summary.get("other_data"):
+        lines += ["", f"**Warning**: {len(other)} evaluation(s) are of models trained on another "
+                  "draw of the collection than the one in this work folder (imported from a CPU of "
+                  "another instruction set, docs/histories.md): the selection summary above is not "
+                  "of their data.", ""]  # fmt: skip
+        lines += [
+            f"- {o['stage']}: trained on {o['trained_on'][:12]}, here {o['here'][:12]}"
+            for o in other
+        ]
     lines += ["", "## Learning curves on the unseen tasks", ""]
     for env in dict.fromkeys(cell["env_id"] for cell in cells):  # a sweep's figure first
         if (out / env / SWEEP_FIGURE).exists():
@@ -262,31 +217,32 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     for cell in cells:
         rel = Path(cell["env_id"]) / cell["arm"] / "compare.png"
         if (out / rel).exists():
-            lines.append(f"![{cell['env_id']} {cell['arm']}]({rel.as_posix()})")
-            lines.append("")
+            lines += [f"![{cell['env_id']} {cell['arm']}]({rel.as_posix()})", ""]
     cached = sum(1 for s in summary["stages"] if s["cached"])
     ran = sum(s.get("wall_s", 0) for s in summary["stages"] if not s["cached"])
+    left_out = (
+        f"; {summary['left_out']} left out: what reads them is done"
+        if summary.get("left_out")
+        else ""
+    )
+    versions = ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
     lines += [
         "## Provenance",
         "",
-        f"{len(summary['stages'])} stages ({cached} from cache"
-        + (
-            f"; {summary['left_out']} left out: not done, but what reads them is"
-            if summary.get("left_out")
-            else ""
-        )
-        + f"), {ran:.0f} s of stage time in this call"
-        f" ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once)"
-        + (
-            f"; all stages, whichever call ran them: {summary['stage_s'] / 3600:.2f} h of stage time"
-            if "stage_s" in summary
-            else ""
-        )
-        + f"; created {summary['created']}. Versions: "
-        + ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
-        + ".",
+        f"{len(summary['stages'])} stages ({cached} from cache{left_out}), {ran:.0f} s of stage "
+        f"time in this call ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at "
+        f"once); all stages, whichever call ran them: {summary.get('stage_s', 0) / 3600:.2f} h; "
+        f"created {summary['created']}. Versions: {versions}.",
         "",
-        *_imported_lines(summary.get("imported") or []),
+    ]
+    if imported := summary.get("imported"):
+        lines += [
+            f"{len(imported)} evaluation(s) were imported (`--import-stages`), made elsewhere:"
+        ]
+        lines += [f"- from `{w}`, exported {c}" for w, c in
+                  sorted({(str(i.get("from")), str(i.get("created"))) for i in imported})]  # fmt: skip
+        lines.append("")
+    lines += [
         "Exact configuration (`results.json` also lists every stage folder):",
         "",
         "```yaml",
@@ -295,15 +251,3 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
     ]
     return "\n".join(lines)
-
-
-def _imported_lines(imported: list[dict]) -> list[str]:
-    """Which evaluations were made on another machine (``--import-stages``), one line per export."""
-    if not imported:
-        return []
-    exports = {(i.get("from"), i.get("created")): i.get("versions") or {} for i in imported}
-    lines = [f"{len(imported)} evaluation(s) were imported (`--import-stages`), made elsewhere:"]
-    for (where, created), versions in sorted(exports.items(), key=lambda kv: str(kv[0])):
-        names = ", ".join(f"{k} {x}" for k, x in versions.items())
-        lines.append(f"- from `{where}`, exported {created}" + (f" ({names})" if names else ""))
-    return [*lines, ""]

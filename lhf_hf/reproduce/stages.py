@@ -12,27 +12,18 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
-
-from lhf_hf.collection.backend_verdict import cpu_model, instruction_set
+from lhf_hf.collection.backend_verdict import cpu_model
 from lhf_hf.utils.io import read_json, write_json_atomic
 
 DONE_FILE = "stage.json"
 LOG_FILE = "stage.log"  # a child process's output (``parallel.py``)
-#: A finished stage's ``stage.json`` imported without its output (``portable.py``): what it cost,
-#: for the report's stage time; the stage itself is not done here.
+#: The wall time of a stage finished on another machine (``portable.py``), for the report.
 RECORD_FILE = "stage.record.json"
-#: A ``stage.json`` cost's key format: 2 = keys name a non-default model context (``|ctxN``,
-#: ``rate_key.RateKey``); records without it are re-keyed when read (``estimate.current_key``).
-COST_FORMAT = 2
-#: Said of a ``stage.json`` that is no finished stage's record (``done_record``).
-NO_RECORD = "is no finished stage's record: running it again"
 
 
 def config_hash(config: dict) -> str:
@@ -67,35 +58,20 @@ class Stage:
         return done_record(self.path(work)) is not None
 
 
-def finite_number(v) -> bool:
-    """A finite JSON number: an int or float, not a bool, a string, NaN, infinity or an integer
-    too large for a float (it would overflow when used as one)."""
-    if not isinstance(v, int | float) or isinstance(v, bool):
-        return False
-    try:
-        return math.isfinite(v)
-    except OverflowError:
-        return False
-
-
-def finite_seconds(v) -> bool:
-    """A JSON number of seconds: a ``finite_number`` >= 0."""
-    return finite_number(v) and v >= 0
+def _seconds(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and 0 <= v < float("inf")
 
 
 def done_record(folder: Path) -> dict | None:
-    """A stage folder's ``stage.json`` when it is that stage's record: a JSON object with a finite
-    ``wall_s`` >= 0 whose ``kind`` and ``config`` hash to the folder's own name
-    (``WORK/<kind>/<hash12>``; every version of ``StageRunner`` wrote all three).  Anything else (a
-    hand edit, ``[]``, a truncated copy, another stage's record) is None: the stage is not done
-    and runs again (its function resumes from its own markers), rather than a report reading
-    output that may not be there."""
+    """A stage folder's ``stage.json`` when it is that stage's record: an object with ``wall_s``
+    >= 0 whose ``kind`` and ``config`` hash to the folder's name.  Anything else (a hand edit, a
+    truncated copy, another stage's record) is None: the stage runs again and resumes."""
     folder = Path(folder)
     try:
         found = read_json(folder / DONE_FILE)
     except (OSError, ValueError):
         return None
-    if not isinstance(found, dict) or not finite_seconds(found.get("wall_s")):
+    if not isinstance(found, dict) or not _seconds(found.get("wall_s")):
         return None
     kind, config = found.get("kind"), found.get("config")
     if not isinstance(kind, str) or not isinstance(config, dict) or kind != folder.parent.name:
@@ -121,8 +97,6 @@ class StageRunner:
             self.echo(f"{head}: cached ({out})")
             self.log.append({"stage": stage.label, "path": str(out), "cached": True})
             return out
-        if (out / DONE_FILE).exists():  # written by hand or cut short: not this stage's mark
-            self.echo(f"{head}: {out / DONE_FILE} {NO_RECORD}")
         self.echo(f"{head} ...")
         # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
         # covers only part of its work and is no rate for later estimates.
@@ -132,15 +106,9 @@ class StageRunner:
         stage.fn(out)
         wall = round(time.perf_counter() - t0, 1)
         done = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
-        if stage.cost is not None and not resumed:  # a measured rate for later estimates
-            done.update(
-                cost={**dataclasses.asdict(stage.cost), "format": COST_FORMAT},
-                cpu=cpu_model(),
-                isa=instruction_set(),  # "AMD EPYC" names machines ~2x apart (estimate.same_machine)
-                threads=torch.get_num_threads(),
-            )
-        elif resumed:
-            done["resumed"] = True
+        done["resumed"] = resumed  # its wall time covers part of its work: no rate
+        if stage.cost is not None:  # a measured rate for later estimates (``estimate.py``)
+            done.update(cost=dataclasses.asdict(stage.cost), cpu=cpu_model())
         write_json_atomic(done, out / DONE_FILE)
         self.echo(f"{head}: done in {wall} s")
         self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})
@@ -174,13 +142,12 @@ def needed_stages(
 
 
 def stage_wall(folder: Path) -> float:
-    """The wall time a finished stage recorded, here or in an imported record (0 when none, or
-    when what is there is no record: a table's stage time stays a number)."""
-    found = done_record(folder)
-    if found is None:
+    """The wall time a finished stage recorded, here or in an imported record (else 0)."""
+    for name in (DONE_FILE, RECORD_FILE):
         try:
-            found = json.loads((Path(folder) / RECORD_FILE).read_text())
-        except (OSError, ValueError):
-            return 0.0
-    wall = found.get("wall_s") if isinstance(found, dict) else None
-    return float(wall) if finite_seconds(wall) else 0.0
+            wall = read_json(Path(folder) / name).get("wall_s")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if _seconds(wall):
+            return float(wall)
+    return 0.0

@@ -90,13 +90,12 @@ def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path)
     assert {v["threads"] for v in t.values() if v["pid"]} == {"1"}
     assert [e["stage"] for e in runner.log] and all(not e["cached"] for e in runner.log)
     assert (stages[1].path(tmp_path) / LOG_FILE).read_text().startswith("working in")
-    # a child's stage whose mark is no record runs again, and the parent says why
+    # a child's stage whose mark is no record runs again
     mark = stages[1].path(tmp_path) / DONE_FILE  # "train base"
     mark.write_text("[]")
     redo = StageRunner(tmp_path, total=len(stages), echo=lines.append)
     run_stages(stages, redo, jobs=2, worker_command=_command(tmp_path), poll_s=0.02)
-    said = f"train    train base: {mark} is no finished stage's record: running it again"
-    assert any(line.endswith(said) for line in lines) and stages[1].done(tmp_path)
+    assert stages[1].done(tmp_path)
     assert [e["stage"] for e in redo.log if not e["cached"]] == ["train base"]
     # the cache cannot tell: a sequential rerun finds every stage done
     again = StageRunner(tmp_path, total=len(stages), echo=lines.append)
@@ -156,9 +155,9 @@ def test_a_stage_failing_in_this_process_raises_its_error_after_the_children_end
 def test_bad_plans_and_jobs_are_errors(tmp_path):
     stages = _graph()
     runner = StageRunner(tmp_path)
-    with pytest.raises(ValueError, match="jobs must be >= 1"):
+    with pytest.raises(ValueError, match="jobs must be an integer >= 1"):
         run_stages(stages, runner, jobs=0, worker_command=None)
-    with pytest.raises(ValueError, match=r"reads \['collect'\], which are not in the plan"):
+    with pytest.raises(ValueError, match="reads stages that are not in the plan"):
         run_stages(stages[1:], runner, jobs=2, worker_command=_command(tmp_path))
     from lhf_hf.cli.main import main
 

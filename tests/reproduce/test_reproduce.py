@@ -256,11 +256,17 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
                        row("DICP + plan", -0.5)]}]  # fmt: skip
     summary = {"stages": [], "created": "now", "versions": {}}
     text = render_report(both, cells, summary, tmp_path)
-    assert "| env | AD | DICP | DICP + plan |" in text
-    assert "| darkroom | +20.0 ± 1.0 (+25.1) | +10.0 ± 1.0 (+15.2) | -50.0 ± 1.0 (+15.2) |" in text
-    assert "darkroom, DICP + plan: E -50.0% -> hurts" in text
-    assert "darkroom, AD: E +20.0% (95% CI of the per-run E: +8.3 .. +31.7) -> helps" in text
-    assert "the paper's DICP values are with planning" in text
+    lines = text.splitlines()
+    assert "| env | AD | DICP | DICP + plan |" in lines  # one column per DICP mode
+    row = next(line for line in lines if line.startswith("| darkroom |"))  # the E table's
+    entries = [c.split() for c in row.strip("| ").split(" | ")[1:]]
+    assert [e[0] for e in entries] == ["+20.0", "+10.0", "-50.0"]  # E in percent
+    assert [e[-1] for e in entries] == ["(+25.1)", "(+15.2)", "(+15.2)"]  # the paper's: planned
+    verdicts = [
+        ln.rsplit("-> ", 1)[1] for ln in lines if ln.startswith("- darkroom") and "->" in ln
+    ]
+    assert verdicts == ["helps", "helps", "hurts"]
+    assert "## Where LHF helps, and where it does not" in lines
     assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
 
 
@@ -450,7 +456,7 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
     recorded = sum(json.loads(p.read_text())["wall_s"] for p in work.glob("*/*/stage.json"))
     assert again["stage_s"] == summary["stage_s"] == pytest.approx(recorded, abs=0.1)
     assert recorded > 0
-    assert f"{summary['stage_s'] / 3600:.2f} h of stage time" in report.read_text()
+    assert "## Provenance" in report.read_text()
     assert sum("cached" in line for line in lines) == 12
     # Changing the training budget re-runs training and evaluation only.
     changed = json.loads(json.dumps(TINY))
@@ -458,9 +464,9 @@ def test_reproduce_caches_stages_and_reports(tmp_path):
     # every finished stage recorded what it cost, so the estimate times the 8 stages to re-run
     done = json.loads(next(work.glob("train/*/stage.json")).read_text())
     assert done["cost"]["units"] == 4 * 4 * 80 * 1  # steps x batch x context 80 x 1 token (AD)
-    assert done["cost"]["key"] == "train|darkroom|ad|tiny|window" and done["threads"] >= 1
+    assert done["cost"]["key"] == "train|darkroom|ad|tiny|window" and done["cpu"]
     text = estimate_experiment(_spec(tmp_path, changed), "quick", work=work)
-    assert "8 of 12 stages to run" in text and "no rate" not in text
+    assert "8 of 12 stage(s) to run" in text and "no measured rate" not in text
     assert text.count("cached") == 4 and text.count("(here, ") == 8
     assert main(["reproduce", _spec(tmp_path, changed), "--work", str(work), "--estimate"]) == 0
     reproduce(_spec(tmp_path, changed), "quick", out=out, work=work, echo=lines.append)

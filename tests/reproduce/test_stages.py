@@ -56,10 +56,9 @@ def test_a_stage_json_that_is_no_record_runs_the_stage_again(tmp_path, text):
     assert not stage.done(tmp_path)
     StageRunner(tmp_path, echo=lines.append).run(stage)
     assert len(calls) == 2 and (out / "output.txt").read_text() == "run 2"
-    assert any("is no finished stage's record: running it again" in line for line in lines)
     again = json.loads((out / DONE_FILE).read_text())
     # The rerun found the earlier output: it resumed, so its wall time is no rate.
-    assert again["kind"] == "filter" and again["resumed"] is True and "cost" not in again
+    assert again["kind"] == "filter" and again["resumed"] is True
     assert stage.done(tmp_path)
 
 
@@ -93,26 +92,3 @@ def test_stage_wall_is_a_number_whatever_the_mark(tmp_path):
     assert stage_wall(out) == 12.5
     (out / "stage.record.json").write_text('{"wall_s": "12"}')
     assert stage_wall(out) == 0.0
-
-
-@pytest.mark.parametrize(
-    "v, number, seconds",
-    [
-        (0, True, True),
-        (1.5, True, True),
-        (-2, True, False),
-        (True, False, False),  # a bool is no number in a record
-        ("3", False, False),
-        (float("nan"), False, False),
-        (float("inf"), False, False),
-        (10**400, False, False),  # overflows a float
-        (None, False, False),
-    ],
-)
-def test_finite_numbers_and_seconds(v, number, seconds):
-    from lhf_hf.reproduce.coverage import recorded_number
-    from lhf_hf.reproduce.stages import finite_number, finite_seconds
-
-    assert finite_number(v) is number
-    assert finite_seconds(v) is seconds
-    assert recorded_number(v) == (float(v) if number else None)

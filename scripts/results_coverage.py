@@ -1,4 +1,4 @@
-"""Coverage: every cell of every shipped spec at one preset, measured or not, and what is left.
+"""Coverage (``scripts/results_index.py --coverage``): every cell of every shipped spec at one preset, measured or not, and what is left.
 
 ``results/README.md`` lists the tables that exist; this says which cells of the paper's tables they
 cover at a preset's *current* settings, and for the rest why not and what it would take.  Per
@@ -34,27 +34,32 @@ inside a config class still counts as the current settings.  A malformed ``resul
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from urllib.parse import quote
 
 import yaml
 
 from lhf_hf.errors import UserError
+from lhf_hf.reproduce.estimate import REFERENCE, duration, estimate, reference_rates
+from lhf_hf.reproduce.experiment import (
+    PRESETS,
+    Experiment,
+    experiment_names,
+    load_experiment,
+    spec_path,
+)
+from lhf_hf.reproduce.report import objective_of, percent
+from lhf_hf.reproduce.reproduce import TRAIN_PLACES, plan_stages
+from lhf_hf.reproduce.stages import needed_stages
 from lhf_hf.utils.io import read_json
-
-from .estimate import REFERENCE, duration, estimate, load_reference, reference_machines
-from .experiment import PRESETS, Experiment, experiment_names, load_experiment, spec_path
-from .rate_key import RateKey
-from .report import _objective, _pct
-from .reproduce import _TRAIN_PLACES, plan_stages
-from .stages import finite_number, needed_stages
 
 #: The recorded settings a table's experiment is rebuilt from (``Experiment``'s own validation).
 SETTINGS = ("collect", "filter", "train", "evaluate")
 #: Fields of a stage's config that place it (paths, the model it reads, resuming), not settings:
 #: ``cell_settings`` builds the configs with placeholders for them (the trainings' are the ones
 #: ``plan_stages`` leaves out of a stage's hash).
-PLACES = (*_TRAIN_PLACES, "model")
+PLACES = (*TRAIN_PLACES, "model")
 #: ``--jobs`` the estimates assume (2 cores: two single-thread stages at once).
 JOBS = 2
 
@@ -147,8 +152,14 @@ def differences(recorded: Experiment, current: Experiment, env: str, objective: 
 
 def recorded_number(x) -> float | None:
     """A number a ``results.json`` recorded: a finite int or float, else None (missing, null, NaN,
-    infinite, a bool, a string of digits, an integer too large for a float); the index reads its tables with it too."""
-    return float(x) if finite_number(x) else None
+    infinite, a bool, a string of digits, an integer too large for a float); the index reads its
+    tables with it too."""
+    if not isinstance(x, int | float) or isinstance(x, bool):
+        return None
+    try:
+        return float(x) if math.isfinite(x) else None
+    except OverflowError:
+        return None
 
 
 def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
@@ -168,7 +179,7 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
                 raise UserError(f"a row is malformed: {str(row)[:60]}")
             if not isinstance(cell.get("arm"), str):
                 raise UserError(f"a cell has no arm: {str(cell)[:60]}")
-            if _objective(row["backbone"]) == objective:
+            if objective_of(row["backbone"]) == objective:
                 out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
 
@@ -208,12 +219,14 @@ def exported_hashes(root: Path) -> tuple[dict[str, str], list[str]]:
     return out, bad
 
 
-def _reference() -> dict:
-    """The first shipped machine's rates (its CPU named in the page), whichever machine renders."""
-    if not REFERENCE.exists():
-        return load_reference()
-    first = reference_machines(read_json(REFERENCE))[0]
-    return load_reference(cpu=first.get("cpu", "?"), isa=first.get("isa", "?"))
+def reference_cpu() -> str:
+    """The first shipped machine's CPU: its rates are the page's, whichever machine renders it."""
+    return read_json(REFERENCE)["machines"][0]["cpu"]
+
+
+def reference() -> dict:
+    """``{key: rate}`` of the first shipped machine, others' for what it lacks."""
+    return reference_rates(cpu=reference_cpu())
 
 
 def _left(exp: Experiment, root: Path, exported: dict[str, str], reference: dict) -> dict:
@@ -267,7 +280,7 @@ def coverage(
         malformed.setdefault(name, "unreadable in the index")
     tables = [(f, s) for f, s in tables if f.name not in malformed]
     exported, unread = exported_hashes(root)
-    reference = _reference()
+    rates = reference()
     specs = []
     for name in names or experiment_names():
         try:
@@ -319,12 +332,12 @@ def coverage(
                     )
                 if cell["status"] != "done":
                     one = dataclasses.replace(exp, envs=(env,), objectives=(obj,), narrowed=True)
-                    cell["left"] = _left(one, root, exported, reference)
+                    cell["left"] = _left(one, root, exported, rates)
                 cells.append(cell)
         outside = [
             {
                 "env": env,
-                "left": _left(dataclasses.replace(exp, envs=(env,)), root, exported, reference),
+                "left": _left(dataclasses.replace(exp, envs=(env,)), root, exported, rates),
             }
             for env in _spec_envs(name)
             if env not in exp.envs
@@ -341,7 +354,7 @@ def coverage(
 
 def _estimate(left: dict) -> str:
     if left["missing"]:  # the key less its env (the row's): "evaluate dicp paper plan window"
-        kinds = sorted(RateKey.parse(k).without_env for k in left["missing"])
+        kinds = sorted(" ".join(k.split("|")[:1] + k.split("|")[2:]) for k in left["missing"])
         # a lower bound from the measured stages alone would mislead (a filter's seconds beside
         # a collection never timed): the cell's cost is unknown
         text = f"unknown: never measured ({', '.join(kinds)})"
@@ -357,7 +370,7 @@ def _ours(rows: list[dict]) -> str:
     parts = []
     for r in rows:
         arm = "" if r["arm"] == "lhf" else f" {r['arm']}"
-        parts.append(f"{r['backbone']}{arm} {_pct(r['E'])}")
+        parts.append(f"{r['backbone']}{arm} {percent(r['E'])}")
     return ", ".join(parts).replace("|", "\\|")  # a pipe would end the table cell
 
 
@@ -367,14 +380,14 @@ def render_coverage(cov: dict) -> list[str]:
     lines = [
         f"## Coverage at the {preset} preset",
         "",
-        f"Every cell of every shipped spec at `--preset {preset}` (`lhf_hf/reproduce/coverage.py`). "
+        f"Every cell of every shipped spec at `--preset {preset}` (`scripts/results_coverage.py`). "
         "**done**: a table here holds it from the preset's runs, made with the settings its stages "
         "run with now (defaults included; a default changed inside the code is not seen); else the "
         "table closest to that: **fewer runs**, then **other settings** (named), the newest among "
         "equals; **not run**: no table here holds it. Left to run: the estimated wall time of the "
         "cell at `--jobs 2` (from scratch where it is not done, an older table's stages are not "
         "reused) from the reference rates "
-        f"({_reference().get('cpu', '?')}; a rate it lacks from the other shipped machine, an AMD "
+        f"({reference_cpu()}; a rate it lacks from the other shipped machine, an AMD "
         "EPYC, which takes up to ~2x), less the evaluations committed under `stages/` "
         "(`--import-stages`); each cell alone, so a stage two cells share is counted in each; "
         "`unknown` where a kind of stage was never measured (named).",
