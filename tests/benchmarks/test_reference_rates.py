@@ -69,6 +69,7 @@ def test_this_machine_s_table_is_written_in_place_and_merged(tmp_path):
 @pytest.mark.parametrize(
     "text", ["{bad", "{}", "[]", "null", '{"machines": 5}', '{"machines": [1]}']
 )
+@pytest.mark.slow
 def test_a_malformed_rates_file_is_refused_and_left_as_it_was(tmp_path, text):
     _stage(tmp_path, 0, "collect|darkroom|batched|ppo", 10.0, 1000.0)
     out = tmp_path / "rates.json"

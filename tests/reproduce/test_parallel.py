@@ -66,6 +66,7 @@ def _times(stages, work):
     return {s.label: json.loads((s.path(work) / "times.json").read_text()) for s in stages}
 
 
+@pytest.mark.slow
 def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path):
     stages = _graph()
     lines: list[str] = []
@@ -103,6 +104,7 @@ def test_dependencies_first_at_most_jobs_at_once_and_collections_alone(tmp_path)
     assert all(e["cached"] for e in again.log)
 
 
+@pytest.mark.slow
 def test_a_failed_stage_stops_new_starts_and_names_its_log(tmp_path):
     stages = _graph()
     lines: list[str] = []

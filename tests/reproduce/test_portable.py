@@ -151,6 +151,7 @@ def _copy(root: Path, tmp_path: Path) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_an_edited_or_malformed_export_is_refused_whole(exported, tmp_path):
     spec, root = exported
     plan, _ = plan_stages(load_experiment(spec, "quick", 2), tmp_path)

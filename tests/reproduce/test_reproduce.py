@@ -45,6 +45,7 @@ def _spec(tmp_path: Path, spec: dict, name: str = "tiny") -> str:
     return str(path)
 
 
+@pytest.mark.slow
 def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
     names = experiment_names()
     for required in ("darkroom-main", "darkroom-noisy", "darkroom-half", "darkroom-lightweight",
@@ -542,6 +543,7 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert "1 backbone(s), 24 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 4)
 
 
+@pytest.mark.slow
 def test_a_train_stage_resumes_a_whole_checkpoint_or_starts_clean(tmp_path, monkeypatch):
     """A training stage's model folder left by a killed run: without a checkpoint it is removed
     before training (an --overwrite would set it aside and, interrupted, put it back over the new

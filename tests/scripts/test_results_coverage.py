@@ -169,6 +169,7 @@ def test_the_index_lists_the_coverage_first_when_asked(tmp_path):
     assert "| darkroom-main | darkroom | AD | +25.1 | not run |" in text
 
 
+@pytest.mark.slow
 def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_path):
     exp = load_experiment("darkroom-lambda", "cpu")
     now = exp.to_dict()

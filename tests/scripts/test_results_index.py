@@ -151,6 +151,7 @@ def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
     assert "No cells: the table compared nothing." in text
 
 
+@pytest.mark.slow
 def test_empty_root_and_the_script_writes_readme(tmp_path):
     assert "No tables yet" in render_index(tmp_path)[0]
     _table(tmp_path, "x", [{"env_id": "darkroom", "arm": "lhf", "rows": [_row("AD", 0.1, 0.2)]}],
