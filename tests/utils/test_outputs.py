@@ -374,7 +374,7 @@ def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch):
     real_record = outputs.record_manifest
 
     def record_then_interrupt(*args, **kwargs):
-        os.kill(os.getpid(), signal.SIGINT)  # ignored within the switch
+        signal.raise_signal(signal.SIGINT)  # held within the switch (to this thread: no delivery race)
         real_record(*args, **kwargs)
 
     monkeypatch.setattr(outputs, "record_manifest", record_then_interrupt)
