@@ -13,7 +13,8 @@ from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
 from lhf_hf.errors import UserError
 from lhf_hf.modeling import load_model
 from lhf_hf.training.card import MODEL_EVALS_FILE, evaluation_problems, write_model_card
-from lhf_hf.training.trainer import TRAIN_CONFIG_FILE, check_model_env
+from lhf_hf.training.model_config import check_model_env
+from lhf_hf.training.trainer import TRAIN_CONFIG_FILE
 from lhf_hf.utils.hub import is_hub_snapshot, resolve, source_of
 from lhf_hf.utils.io import read_json, write_json_atomic
 from lhf_hf.utils.outputs import changed_since_written, file_lock, output_folder

@@ -19,7 +19,7 @@ from lhf_hf.collection.backend_verdict import cpu_model
 from lhf_hf.configs import CollectConfig, EvalConfig, TrainConfig
 from lhf_hf.envs import get_spec, list_env_ids
 from lhf_hf.evaluation.evaluate import resolve_tasks
-from lhf_hf.training.trainer import model_config_for, sequence_length
+from lhf_hf.training.model_config import model_config_for, sequence_length
 from lhf_hf.utils.io import read_json
 
 from .parallel import IN_PROCESS

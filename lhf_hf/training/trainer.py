@@ -7,7 +7,6 @@ Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with 
 
 from __future__ import annotations
 
-import hashlib
 import os
 import re
 import shutil
@@ -16,8 +15,6 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
-import gymnasium as gym
-import numpy as np
 import torch
 from huggingface_hub import HfApi
 from transformers import Trainer, TrainerCallback, TrainingArguments, set_seed
@@ -27,15 +24,13 @@ from lhf_hf import constants as C
 from lhf_hf.configs.train import TrainConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.errors import NotFoundError, UserError
-from lhf_hf.filtering.select import SCORES_FILE, load_selection, source_mismatch
+from lhf_hf.filtering.counts import selection_counts
 from lhf_hf.histories import load_histories
-from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config
+from lhf_hf.modeling import ICRLConfig, ICRLModel
 from lhf_hf.modeling.loading import check_weights
-from lhf_hf.utils.hub import resolve, source_of
 from lhf_hf.utils.io import (
     give_umask_mode,
     read_json,
-    sha256_file,
     write_json_atomic,
     write_text_atomic,
 )
@@ -45,7 +40,14 @@ from lhf_hf.utils.versions import library_versions
 
 from .card import MODEL_EVALS_FILE, plot_loss, write_model_card
 from .collators import make_collator
-from .windows import HistoryArrays, WindowDataset, load_arrays
+from .model_config import (
+    check_model_env,
+    describe_coverage,
+    model_config_for,
+    sequence_length,
+    split_coverage,
+)
+from .windows import WindowDataset, load_arrays
 
 TRAIN_CONFIG_FILE = "train_config.json"
 #: Trainer's arguments as JSON: Trainer itself pickles them into ``training_args.bin``, and loading a
@@ -186,140 +188,6 @@ class _Throughput(TrainerCallback):
             )
 
 
-# ---------------------------------------------------------------------------- model config
-def sequence_length(cfg: TrainConfig, config: ICRLConfig) -> int:
-    """Transitions per training item: the context (``window``) or a longer sequence (``band``)."""
-    if config.attention != "band":
-        return config.context_length
-    if cfg.sequence_length is not None and cfg.sequence_length < config.context_length:
-        raise UserError(
-            f"TrainConfig.sequence_length must be >= the context length {config.context_length}, "
-            f"got {cfg.sequence_length}"
-        )
-    return cfg.sequence_length or 4 * config.context_length
-
-
-def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
-    """The ICRLConfig that ``cfg`` trains on env ``spec`` (spaces, context, planning from the env)."""
-    if cfg.objective == "dpt":
-        if not spec.has_optimal_action or not has_optimal:
-            raise UserError(
-                f"DPT needs the oracle's optimal action of every state (column {C.OPTIMAL_ACTION}); "
-                f"the {spec.env_id} dataset has none (the paper runs DPT on the gridworlds only)"
-            )
-    state_space, action_space = spec.state_space, spec.action_space
-    integer_states = np.issubdtype(state_space.dtype, np.integer)
-    if cfg.state_encoding == "cells" and not integer_states:
-        raise UserError(
-            f"TrainConfig.state_encoding='cells' needs integer (grid) states; {spec.env_id}'s states "
-            "are real-valued: use 'coordinates' (real states are used as they are)"
-        )
-    discrete = isinstance(action_space, gym.spaces.Discrete)
-    reward_classes = list(spec.reward_values) if spec.reward_values else None
-    weighting_applies = cfg.objective == "dicp" and discrete and bool(reward_classes)
-    if cfg.reward_weighting == "actions" and not weighting_applies:
-        raise UserError(
-            "TrainConfig.reward_weighting='actions' weighs DICP's reward-classification loss, on "
-            "envs with discrete actions and few reward values; "
-            + (
-                f"{cfg.objective} has no reward head"
-                if cfg.objective != "dicp"
-                else f"{spec.env_id} has real-valued rewards or actions"
-            )
-            + ": use 'data'"
-        )
-    weighting = cfg.reward_weighting or ("actions" if weighting_applies else "data")
-    return icrl_config(
-        cfg.preset,
-        objective=cfg.objective,
-        env_id=spec.env_id,
-        state_dim=int(np.prod(state_space.shape)),
-        state_bins=int(state_space.high.max()) + 1 if integer_states else 0,
-        state_encoding=cfg.state_encoding,
-        attention=cfg.attention,
-        action_dim=int(action_space.n) if discrete else int(np.prod(action_space.shape)),
-        discrete_actions=discrete,
-        context_length=cfg.context_length or spec.context_length,
-        label_positions=cfg.label_positions or "all",
-        dynamics_coef=cfg.dynamics_coef,
-        return_scale=float(spec.horizon),
-        plan_horizon=spec.plan_horizon,
-        reward_values=reward_classes,
-        reward_weighting=weighting,
-    )
-
-
-def check_model_env(config: ICRLConfig, spec) -> None:
-    """Raise when a model's spaces do not match an env's (a discrete head on a continuous env...)."""
-    discrete = isinstance(spec.action_space, gym.spaces.Discrete)
-    if config.discrete_actions != discrete:
-        kind = "discrete" if config.discrete_actions else "continuous"
-        raise UserError(
-            f"the model has a {kind} action head but {spec.env_id} has a "
-            f"{'discrete' if discrete else 'continuous'} action space {spec.action_space}"
-        )
-    n = int(spec.action_space.n) if discrete else int(np.prod(spec.action_space.shape))
-    s = int(np.prod(spec.state_space.shape))
-    if config.action_dim != n or config.state_dim != s:
-        raise UserError(
-            f"the model expects {config.state_dim}-dim states and {config.action_dim} actions, "
-            f"{spec.env_id} has {s} and {n}"
-        )
-
-
-def split_coverage(spec, tasks: list[int], split_seed: int) -> dict:
-    """How the training tasks sit in their split: counts of train and test tasks among them."""
-    train, test = spec.split(split_seed)
-    test_in = sorted(set(tasks) & set(test))
-    return {
-        "train_tasks": len(set(tasks) & set(train)),
-        "test_tasks": len(test_in),
-        "of_train": len(train),
-        "of_test": len(test),
-        "test_tasks_trained_on": test_in,
-    }
-
-
-def describe_coverage(env_id: str, split_seed: int, cov: dict) -> str:
-    """One line for the user: which part of the split the training data covers."""
-    head = (
-        f"lhf: training data: {cov['train_tasks']} of the {cov['of_train']} train tasks of "
-        f"{env_id} split seed {split_seed}"
-    )
-    if not cov["test_tasks"]:
-        return f"{head}; its {cov['of_test']} test tasks stay unseen"
-    return (
-        f"{head} and {cov['test_tasks']} of its {cov['of_test']} test tasks: those are seen, and "
-        "`lhf evaluate` refuses them without --allow-seen (collect with --tasks train to keep "
-        "the test tasks unseen)"
-    )
-
-
-# ---------------------------------------------------------------------------- selection
-def selection_counts(selection_dir: str, ds, arrays: HistoryArrays) -> tuple[np.ndarray, dict]:
-    """(H,) counts of an LHF selection aligned with ``arrays``, after checking it fits ``ds``."""
-    local = resolve(selection_dir, "dataset", "selection")
-    sel = load_selection(local)
-    if sel.source.get("fingerprint") is None:
-        raise UserError(f"the selection {selection_dir} does not record its source dataset")
-    for problem in source_mismatch(ds, sel):
-        raise UserError(f"{selection_dir}: {problem}")
-    counts = sel.counts()
-    unknown = set(counts) - set(arrays.history_index.tolist())
-    if unknown:
-        raise UserError(f"the selection names {len(unknown)} histories that {ds.root} lacks")
-    out = np.array([counts.get(int(h), 0) for h in arrays.history_index], np.int64)
-    info = {
-        "path": source_of(selection_dir, local),
-        "fingerprint": sha256_file(local / SCORES_FILE),
-        "counts_sha256": hashlib.sha256(out.tobytes()).hexdigest(),  # what training draws from
-        "filter": sel.config.to_dict(),
-        "selected_unique": int((out > 0).sum()),
-        "total_count": int(out.sum()),
-    }
-    return out, info
-
-
 # ---------------------------------------------------------------------------- train
 def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bool = True):
     """Everything ``train`` runs, without running it: (trainer, provenance dict)."""
@@ -342,7 +210,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     )
     counts, selection = None, None
     if cfg.selection:
-        counts, selection = selection_counts(cfg.selection, ds, arrays)
+        counts, selection = selection_counts(cfg.selection, ds, arrays.history_index)
     length = sequence_length(cfg, config)
     shortest = int(arrays.history_lengths.min())
     if config.context_length <= shortest < length:  # band sequences only: windows are checked below
