@@ -362,12 +362,16 @@ def test_an_interrupt_after_the_body_puts_the_old_artifact_back(tmp_path, capsys
     assert "holds the earlier selection again (unchanged)" in capsys.readouterr().err
 
 
-def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch):
+def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch, handlers):
     """Ctrl-C while the manifest is written and the old copy deleted: the switch completes (the
     new artifact whole, no half-deleted aside), then the interrupt is delivered."""
     import signal
 
     import lhf_hf.utils.outputs as outputs
+
+    # Python's own Ctrl-C handler, even where the suite was started with SIGINT ignored (a shell's
+    # background job: then Python leaves SIG_IGN in place and no interrupt is ever delivered)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     with output_folder(tmp_path / "s", "selection") as s:
         (s / "x").write_text("old")
