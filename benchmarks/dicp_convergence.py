@@ -165,13 +165,13 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(
-        out / "convergence.json",
         {
             "modes": MODES,
             "levels": LEVELS,
             "points": {str(k): v for k, v in points.items()},
             "training": train_minutes(Path(args.train_log) if args.train_log else None),
         },
+        out / "convergence.json",
     )
     plot(points, out / "convergence.png")
     for step, modes in points.items():
