@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lhf_hf.errors import UserError
+from lhf_hf.errors import OutOfRangeError, UserError
 
 #: Row/col displacement of the five base actions (docs/design.md section 2).
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0, 0]], dtype=np.int64)  # (5, 2)
@@ -109,7 +109,7 @@ class GridworldVariant:
             raise TypeError(f"{self.name}: task indices must be integers, got dtype {arr.dtype}")
         bad = arr[(arr < 0) | (arr >= self.num_tasks)]
         if bad.size:
-            raise IndexError(
+            raise OutOfRangeError(
                 f"{self.name}: task index {int(bad[0])} out of range; valid tasks are 0..{self.num_tasks - 1}"
             )
         return arr.astype(np.int64)

@@ -50,12 +50,19 @@ def check_unseen(
     if seen:
         shown = ", ".join(map(str, seen[:12])) + (" ..." if len(seen) > 12 else "")
         trained_split = getattr(config, "split_seed", None)
-        hint = (
-            f"evaluate on the model's own split (split seed {trained_split}: leave out "
-            "--split-seed and --tasks)"
-            if trained_split is not None and trained_split != split_seed
-            else "train on data without them (collect --tasks train)"
-        )
+        if trained_split is not None and trained_split != split_seed:
+            hint = (
+                f"evaluate on the model's own split (split seed {trained_split}: leave out "
+                "--split-seed and --tasks)"
+            )
+        elif set(seen) <= set(spec.validation_split(split_seed)[1]):
+            # validation tasks are held out only of `--tasks fit` data
+            hint = "for validation, train on data collected with --tasks fit"
+        elif set(seen) <= set(spec.split(split_seed)[1]):
+            hint = "train on data without them (collect --tasks train)"
+        else:  # train (or fit) tasks: a model is never unseen on what it trained on
+            hint = "evaluate on --tasks validation (a model trained on --tasks fit data) or test"
+
         raise SeenTasksError(
             f"{len(seen)} of the {len(tasks)} evaluation tasks of {spec.env_id} (split seed "
             f"{split_seed}) are in {model}'s training data ({shown}): results on them are not "

@@ -202,6 +202,24 @@ def test_validation_tasks_are_evaluated_by_name(trained, tmp_path):
     )
     assert sorted(res["tasks"]) == [12, 17, 27, 36, 45, 61, 64, 68]
     assert res["task_label"] == "unseen tasks" and res["seen_tasks"] == []
-    with pytest.raises(SeenTasksError, match=r"\(3, 40\)"):
+    with pytest.raises(SeenTasksError, match=r"\(3, 40\).*Evaluate on --tasks validation"):
         evaluate(EvalConfig(model=str(trained), out=str(tmp_path / "t"), episodes=1,
                             tasks="train"), False)  # fmt: skip
+    # a task index beyond the env's tasks is an expected failure (one line), not an IndexError bug
+    from lhf_hf.errors import OutOfRangeError, UserError
+
+    with pytest.raises(OutOfRangeError, match="task index 999 out of range") as info:
+        evaluate(EvalConfig(model=str(trained), out=str(tmp_path / "r"), episodes=1,
+                            tasks="999"), False)  # fmt: skip
+    assert isinstance(info.value, UserError)
+
+
+def test_the_seen_hint_names_the_fix_for_validation_tasks(tmp_path):
+    """A model trained on all train tasks covers the validation tasks: the fix is fit data."""
+    from lhf_hf.evaluation.seen import check_unseen
+
+    dark = get_spec("darkroom")
+    validation = [12, 17, 27, 36, 45, 61, 64, 68]
+    model = _Config(task_split("darkroom", 0)[0], 0)  # trained on --tasks train
+    with pytest.raises(SeenTasksError, match="train on data collected with --tasks fit"):
+        check_unseen(dark, model, validation, 0, False, "m")
