@@ -107,7 +107,7 @@ def collect(evals: Path) -> dict:
     return dict(sorted(points.items()))
 
 
-def train_minutes(log: Path | None) -> dict | None:
+def training_log(log: Path | None) -> dict | None:
     """The training's logged losses (every ``logging_steps``) and its final summary, if given."""
     if log is None or not log.exists():
         return None
@@ -150,8 +150,7 @@ def plot(points: dict, out: Path) -> None:
     axes[0].legend(fontsize=7, loc="lower right")
     fig.suptitle("DICP on Darkroom (paper-protocol data, 100 histories per goal): planning vs policy")
     fig.tight_layout()
-    save_figure_atomic(fig, out)
-    plt.close(fig)
+    save_figure_atomic(fig, out)  # closes the figure
 
 
 def main() -> None:
@@ -170,7 +169,7 @@ def main() -> None:
             "modes": MODES,
             "levels": LEVELS,
             "points": {str(k): v for k, v in points.items()},
-            "training": train_minutes(Path(args.train_log) if args.train_log else None),
+            "training": training_log(Path(args.train_log) if args.train_log else None),
         },
         out / "convergence.json",
     )
