@@ -73,7 +73,7 @@ def main() -> None:
     args = p.parse_args()
     ds = load_histories(args.dataset)
     hist = ds.histories.data.table
-    task_of = hist.column(C.TASK_INDEX).to_pylist()
+    task_of = hist.column(C.TASK_ID).to_pylist()
     returns = hist.column(C.RETURNS).to_pylist()
     r_max = dict(enumerate(get_spec(ds.env_id).optimal_returns().tolist()))
 

@@ -69,11 +69,11 @@ def test_changed_frames_are_found(data, capsys):
         ),
         (
             lambda t: t.set_column(
-                t.schema.get_field_index(C.TASK_INDEX),
-                C.TASK_INDEX,
+                t.schema.get_field_index(C.TASK_ID),
+                C.TASK_ID,
                 pa.array(np.full(t.num_rows, 7, np.int64)),
             ),  # fmt: skip
-            "task_index values do not match",
+            "task_id values do not match",
         ),
     ],
 )

@@ -24,10 +24,34 @@ from lhf_hf.utils.signals import (
     sigterm_raises,
 )
 
-from . import collect, compare, derive, envs, evaluate, filter, push, reproduce, train, verify
+from . import (
+    collect,
+    compare,
+    derive,
+    envs,
+    evaluate,
+    filter,
+    push,
+    reproduce,
+    train,
+    upgrade,
+    verify,
+)
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
-COMMANDS = [envs, collect, derive, filter, train, evaluate, compare, push, reproduce, verify]
+COMMANDS = [
+    envs,
+    collect,
+    derive,
+    filter,
+    train,
+    evaluate,
+    compare,
+    push,
+    reproduce,
+    verify,
+    upgrade,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

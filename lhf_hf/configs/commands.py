@@ -182,3 +182,14 @@ class VerifyOptions:
     """
 
     path: str
+
+
+@dataclass(frozen=True)
+class UpgradeOptions:
+    """What ``lhf upgrade`` rewrites.
+
+    path: a learning-history dataset folder in lhf's earlier layout (its env task numbers in
+        ``task_index``), rewritten in place into LeRobot v3.0 as LeRobot's reader loads it.
+    """
+
+    path: str

@@ -156,7 +156,7 @@ class EnvSpec:
         """The parameters of ``task`` (``describe_task``), or its index and split seed."""
         if self.describe_task is not None:
             return self.describe_task(task, split_seed)
-        return {"task_index": int(task), "split_seed": int(split_seed)}
+        return {"task_id": int(task), "split_seed": int(split_seed)}
 
     def summary(self) -> dict:
         """A JSON-ready row for ``lhf envs``."""

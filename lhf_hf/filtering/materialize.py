@@ -82,7 +82,7 @@ def materialize(
     hist = ds.histories.to_pandas()
 
     def transform(task: int, th):
-        rows = hist[hist[C.TASK_INDEX] == task].sort_values(C.HISTORY_IN_TASK)
+        rows = hist[hist[C.TASK_ID] == task].sort_values(C.HISTORY_IN_TASK)
         reps = np.array([counts.get(int(h), 0) for h in rows[C.HISTORY_INDEX]], dtype=np.int64)
         if reps.sum() != th.num_histories:
             raise UserError(

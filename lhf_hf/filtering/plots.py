@@ -26,7 +26,7 @@ def plot_selection(
     import matplotlib.pyplot as plt  # deferred: after matplotlib.use("Agg")
 
     t = selection_table
-    task = t.column(C.TASK_INDEX).to_numpy()
+    task = t.column(C.TASK_ID).to_numpy()
     hist = t.column(C.HISTORY_INDEX).to_numpy()
     score = t.column("score").to_numpy()
     count = t.column("count").to_numpy()

@@ -1,6 +1,6 @@
 """LHF as a ``datasets`` operation: score the histories table, resample per task, save a selection.
 
-A *selection* is one row per selected history (``task_index``, ``history_index``, ``count``, and its
+A *selection* is one row per selected history (``task_id``, ``history_index``, ``count``, and its
 ``improvement``, ``stability``, ``score``, ``probability``) plus the filter config and the source
 dataset's fingerprint.  It never rewrites frames: ``apply_selection`` / ``materialize`` do that.
 """
@@ -58,7 +58,7 @@ def _r_max_lookup(r_max, env_id: str | None) -> dict | float:
 def _score_batch(batch: pa.Table, lam: float, r_max) -> pa.Table:
     """Batched ``datasets.map`` function on Arrow batches: Improvement, Stability, U per history."""
     hist = batch.column(C.HISTORY_INDEX).to_numpy()
-    tasks = batch.column(C.TASK_INDEX).to_numpy()
+    tasks = batch.column(C.TASK_ID).to_numpy()
     returns = batch.column(C.RETURNS).combine_chunks()
     lengths = pa.compute.list_value_length(returns).fill_null(0).to_numpy(zero_copy_only=False)
     if np.any(lengths == 0):
@@ -98,7 +98,7 @@ def score_histories(
 ) -> datasets.Dataset:
     """The histories table with ``improvement``, ``stability``, ``score`` columns (a batched map)."""
     missing = [
-        c for c in (C.TASK_INDEX, C.HISTORY_INDEX, C.RETURNS) if c not in histories.column_names
+        c for c in (C.TASK_ID, C.HISTORY_INDEX, C.RETURNS) if c not in histories.column_names
     ]
     if missing:
         raise UserError(
@@ -125,7 +125,7 @@ def score_histories(
 def resample_scored(scored: datasets.Dataset, config: FilterConfig) -> pa.Table:
     """Per-task resampling of a scored histories table: every history with its count (0 = rejected)."""
     t = scored.data.table if hasattr(scored.data, "table") else scored.data
-    task = t.column(C.TASK_INDEX).to_numpy()
+    task = t.column(C.TASK_ID).to_numpy()
     score = t.column("score").to_numpy()
     counts = np.zeros(task.size, dtype=np.int64)
     prob = np.zeros(task.size)
@@ -143,7 +143,7 @@ def resample_scored(scored: datasets.Dataset, config: FilterConfig) -> pa.Table:
         )
         prob[rows], counts[rows] = p, c
     cols = {
-        C.TASK_INDEX: task,
+        C.TASK_ID: task,
         C.HISTORY_INDEX: t.column(C.HISTORY_INDEX).to_numpy(),
         "count": counts,
         **{k: t.column(k).to_numpy() for k in SCORE_COLUMNS},
@@ -168,7 +168,7 @@ def lhf_resample(
 ) -> datasets.Dataset:
     """LHF on a histories table: the selection, one row per selected history with its ``count``.
 
-    ``r_max``: a return, ``{task_index: return}``, or None with ``env_id`` (a gridworld's optimal
+    ``r_max``: a return, ``{task_id: return}``, or None with ``env_id`` (a gridworld's optimal
     returns).  Counts per task sum to the task's number of histories.
     """
     config = FilterConfig(
@@ -304,7 +304,7 @@ def filter_histories(ds, config: FilterConfig) -> Selection:
         "env_id": ds.env_id,
         "fingerprint": ds.fingerprint,
         "histories_fingerprint": histories_fingerprint(ds),
-        "total_histories": ds.info["total_histories"],
+        "total_histories": ds.lhf["total_histories"],
         "histories_per_task": ds.lhf["histories_per_task"],
     }
     return Selection(table, config, source)

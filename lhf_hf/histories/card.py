@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from huggingface_hub import DatasetCard, DatasetCardData
 
@@ -23,7 +25,8 @@ COLUMN_MEANING = {
     C.INDEX: "global frame index",
     C.FRAME_INDEX: "step within the episode",
     C.EPISODE_INDEX: "global episode index",
-    C.TASK_INDEX: "env task index (see meta/tasks.parquet)",
+    C.TASK_INDEX: "row of the task in meta/tasks.parquet (LeRobot's dense task index)",
+    C.TASK_ID: "the env's own task number (what `lhf collect --tasks` names)",
     C.HISTORY_INDEX: "global history index (see meta/histories)",
     C.TIMESTAMP: f"frame_index / fps (fps = {C.FPS})",
 }
@@ -37,8 +40,10 @@ def render_card(ds, load_path: str | None = None) -> str:
     """Render the card text of dataset ``ds`` (a ``HistoryDataset``)."""
     lhf, info = ds.lhf, ds.info
     spec = get_spec(ds.env_id)
-    collect = lhf.get("collect", {})
-    algo = collect.get("algo", "?").upper()
+    derived = lhf.get("derived_from")
+    # a derived dataset (a materialised selection) was collected as its source was
+    collect = lhf.get("collect") or (derived or {}).get("source_collect") or {}
+    algo = str(collect.get("algo", "unknown algorithm")).upper()
     n_tasks = info["total_tasks"]
     size = info["total_frames"]
     size_cat = next(
@@ -57,7 +62,7 @@ def render_card(ds, load_path: str | None = None) -> str:
     )
     card_data = DatasetCardData(
         license="apache-2.0",
-        pretty_name=f"{ds.env_id} learning histories ({algo}, {collect.get('protocol') or (lhf.get('derived_from') or {}).get('op', '?')})",
+        pretty_name=f"{ds.env_id} learning histories ({', '.join(_kind(collect, derived, algo))})",
         task_categories=["reinforcement-learning"],
         tags=["LeRobot", "lhf", "in-context-rl", "learning-histories", ds.env_id],
         size_categories=[size_cat],
@@ -70,10 +75,10 @@ def render_card(ds, load_path: str | None = None) -> str:
     tasks = ds.tasks.to_pandas()
     hist = ds.histories
     returns = hist.data.column(C.RETURNS).to_pylist()
-    task_of = hist.data.column(C.TASK_INDEX).to_numpy()
+    task_of = hist.data.column(C.TASK_ID).to_numpy()
     optimal = spec.optimal_returns() if spec.optimal_returns is not None else None
     rows = []
-    for t, split in zip(tasks[C.TASK_INDEX], tasks[C.SPLIT], strict=True):
+    for t, split in zip(tasks[C.TASK_ID], tasks[C.SPLIT], strict=True):
         r = np.asarray([returns[i] for i in np.flatnonzero(task_of == t)])  # (H, E)
         rows.append(
             {
@@ -90,7 +95,8 @@ def render_card(ds, load_path: str | None = None) -> str:
         note = f" The first 40 of {len(rows)} tasks are shown; the histories table has them all."
         rows = rows[:40]
     kinds = hist.data.column(C.LEARNER).to_pylist()
-    learner_counts = ", ".join(f"{k}: {kinds.count(k) // n_tasks}" for k in dict.fromkeys(kinds))
+    # totals over the dataset: a selection changes the mix task by task
+    learner_counts = ", ".join(f"{k} {kinds.count(k)}" for k in dict.fromkeys(kinds))
     schema = [
         {
             "name": name,
@@ -101,22 +107,20 @@ def render_card(ds, load_path: str | None = None) -> str:
         for name, f in info["features"].items()
     ]
     settings = [(k, v) for k, v in collect.items() if k not in ("tasks",)]
-    if "collect" in lhf:
-        how = _how_collected(collect, lhf)
-    else:
-        how = "Derived from another dataset (see below); its collection settings are in `meta/info.json`."
-    derived = lhf.get("derived_from")
+    how = (
+        _how_collected(collect, lhf)
+        if collect
+        else f"Derived from another dataset; its settings are in `{C.LHF_INFO_PATH}`."
+    )
     derived_note = ""
     if derived:
         derived_note = (
             f"> **Derived dataset** (`{derived['op']}`): {derived['description']} "
-            f"Source: `{derived['source']}` (fingerprint `{derived['source_fingerprint'][:16]}`)."
+            f"Source: {public_source(derived['source'])} (fingerprint "
+            f"`{derived['source_fingerprint'][:16]}`)."
         )
-        src_collect = derived.get("source_collect") or {}
-        settings = [(k, v) for k, v in src_collect.items() if k not in ("tasks",)]
-        how = _how_collected(src_collect, lhf) if src_collect else how
     versions = ", ".join(f"{k} {v}" for k, v in lhf.get("versions", {}).items())
-    n_train = int((tasks[C.SPLIT] == "train").sum())
+    n_train = int((tasks[C.SPLIT] != "test").sum())  # validation tasks are train tasks
     card = DatasetCard.from_template(
         card_data,
         template_path=str(template_path("histories_card.md")),
@@ -144,8 +148,31 @@ def render_card(ds, load_path: str | None = None) -> str:
         task_rows=rows,
         task_table_note=note,
         load_path=load_path or str(ds.root),
+        lerobot_line=(
+            f'ds = LeRobotDataset("{load_path}")'
+            if load_path
+            else f'ds = LeRobotDataset("local/{ds.root.name}", root="{ds.root}")'
+        ),
     )
     return str(card)
+
+
+def _kind(collect: dict, derived: dict | None, algo: str) -> list[str]:
+    """What the card's title says of the data: algorithm, protocol, and how it was derived."""
+    out = [algo]
+    if collect.get("protocol"):
+        out.append(str(collect["protocol"]))
+    if derived:
+        out.append(str(derived.get("op", "derived")))
+    return out
+
+
+def public_source(source: str) -> str:
+    """A source as a card may show it: a Hub repo id as it is, a local folder by its name only
+    (a card is pushed; the machine's paths are not the reader's)."""
+    if "/" in source and not source.startswith(("/", ".", "~")) and not Path(source).exists():
+        return f"`{source}`"
+    return f"a local dataset `{Path(source).name}`"
 
 
 def _how_collected(collect: dict, lhf: dict) -> str:
@@ -171,12 +198,12 @@ def write_card(ds, load_path: str | None = None) -> None:
     spec = get_spec(ds.env_id)
     optimal = None
     if spec.optimal_returns is not None:
-        tasks = ds.tasks.data.column(C.TASK_INDEX).to_numpy()
+        tasks = ds.tasks.data.column(C.TASK_ID).to_numpy()
         optimal = float(spec.optimal_returns()[tasks].mean())
     plot_learning_curve(
         learning_curves(ds.histories.data.to_pydict()),
         ds.root / C.CURVE_PATH,
-        title=f"{ds.env_id}: return per episode over {ds.info['total_histories']} histories",
+        title=f"{ds.env_id}: return per episode over {ds.lhf['total_histories']} histories",
         optimal=optimal,
     )
     write_text_atomic(render_card(ds, load_path), ds.root / C.CARD_PATH)

@@ -55,21 +55,21 @@ def _tables(ds) -> list[str]:
         episodes = pq.read_table(ds.root / C.EPISODES_PATH)
     except (OSError, pa.ArrowException) as exc:
         return [f"the histories or episodes table is not readable ({exc})"]
-    if hist.num_rows != ds.info["total_histories"] or hist.num_rows != len(tasks) * H:
+    if hist.num_rows != lhf["total_histories"] or hist.num_rows != len(tasks) * H:
         problems.append(
-            f"the histories table has {hist.num_rows} rows; info.json says "
-            f"{ds.info['total_histories']} ({len(tasks)} tasks x {H})"
+            f"the histories table has {hist.num_rows} rows; {C.LHF_INFO_PATH} says "
+            f"{lhf['total_histories']} ({len(tasks)} tasks x {H})"
         )
     if episodes.num_rows != ds.info["total_episodes"]:
         problems.append(
             f"the episodes table has {episodes.num_rows} rows; info.json says "
             f"{ds.info['total_episodes']}"
         )
-    task_index = hist.column(C.TASK_INDEX).to_numpy()
-    found, counts = np.unique(task_index, return_counts=True)
+    task_id = hist.column(C.TASK_ID).to_numpy()
+    found, counts = np.unique(task_id, return_counts=True)
     if sorted(found.tolist()) != sorted(tasks) or (counts != H).any():
         problems.append(
-            f"the histories table's task_index values do not match the dataset's {len(tasks)} "
+            f"the histories table's task_id values do not match the dataset's {len(tasks)} "
             f"tasks x {H} histories (found {found.tolist()[:8]}...)"
         )
     if len(np.unique(hist.column(C.HISTORY_INDEX).to_numpy())) != hist.num_rows:
@@ -97,9 +97,11 @@ def _tables(ds) -> list[str]:
 def _returns_of_task(ds, hist: pa.Table, task: int) -> list[str]:
     """The recorded returns of ``task`` (in the histories table ``hist``) against the sums of its
     frames' rewards."""
-    frames = ds.task_frames(task, columns=[C.REWARD, C.HISTORY_INDEX, C.TASK_INDEX])
-    if (frames.column(C.TASK_INDEX).to_numpy() != task).any():
-        return [f"task {task}: its data file holds frames of another task_index"]
+    frames = ds.task_frames(task, columns=[C.REWARD, C.HISTORY_INDEX, C.TASK_INDEX, C.TASK_ID])
+    if (frames.column(C.TASK_ID).to_numpy() != task).any():
+        return [f"task {task}: its data file holds frames of another task_id"]
+    if (frames.column(C.TASK_INDEX).to_numpy() != ds.task_positions()[task]).any():
+        return [f"task {task}: its frames' task_index is not its row in {C.TASKS_PATH}"]
     rewards = frames.column(C.REWARD).to_numpy().astype(np.float64)
     if not np.isfinite(rewards).all():
         return [f"task {task}: NaN or infinite rewards in its frames"]
@@ -107,7 +109,7 @@ def _returns_of_task(ds, hist: pa.Table, task: int) -> list[str]:
     if len(rewards) != H * E * ds.horizon:
         return [f"task {task}: {len(rewards)} frames, expected {H * E * ds.horizon}"]
     recomputed = rewards.reshape(H, E, ds.horizon).sum(-1)  # (H, E), history order of the file
-    mine = hist.filter(pa.compute.equal(hist.column(C.TASK_INDEX), task))
+    mine = hist.filter(pa.compute.equal(hist.column(C.TASK_ID), task))
     order = np.argsort(mine.column(C.HISTORY_INDEX).to_numpy())
     recorded = np.array(mine.column(C.RETURNS).to_pylist(), dtype=np.float64)[order]  # (H, E)
     if recorded.shape != recomputed.shape or not np.allclose(

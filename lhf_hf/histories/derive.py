@@ -40,7 +40,7 @@ def write_derived(
 ) -> HistoryDataset:
     """Write ``transform(task, histories)`` for every task of ``source`` as a new dataset at ``out``.
 
-    ``derived`` (op, description, ...) is stored as ``info.json["lhf"]["derived_from"]`` together
+    ``derived`` (op, description, ...) is stored as ``meta/lhf_info.json["derived_from"]`` together
     with the source's path, fingerprint and collection config.  ``out`` may not be, contain or lie
     in the source or any of ``inputs``.  ``extra_files`` (path in the dataset -> file to copy,
     e.g. the selection's plot) are written before the folder's manifest, so ``lhf verify`` knows

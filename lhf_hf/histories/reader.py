@@ -28,11 +28,12 @@ REQUIRED_FRAME_COLUMNS = (
     C.INDEX,
     C.EPISODE_INDEX,
     C.TASK_INDEX,
+    C.TASK_ID,
     C.HISTORY_INDEX,
 )
 REQUIRED_HISTORY_COLUMNS = (
     C.HISTORY_INDEX,
-    C.TASK_INDEX,
+    C.TASK_ID,
     C.LEARNER,
     C.RETURNS,
     C.FROM_INDEX,
@@ -77,10 +78,34 @@ class HistoryDataset:
             self.info = read_json(info_file)
         except ValueError as exc:
             raise DatasetFormatError(f"{info_file} is not valid JSON: {exc}") from None
-        if self.info.get("codebase_version") != C.CODEBASE_VERSION or "lhf" not in self.info:
+        if (
+            not isinstance(self.info, dict)
+            or self.info.get("codebase_version") != C.CODEBASE_VERSION
+        ):
+            got = self.info.get("codebase_version") if isinstance(self.info, dict) else None
             raise DatasetFormatError(
-                f"{self.root}: expected a LeRobot {C.CODEBASE_VERSION} dataset with an 'lhf' section in "
-                f"{C.INFO_PATH}, got codebase_version={self.info.get('codebase_version')!r}"
+                f"{self.root}: expected a LeRobot {C.CODEBASE_VERSION} dataset, got "
+                f"codebase_version={got!r} in {C.INFO_PATH}"
+            )
+        if "lhf" in self.info:  # layout 1: the lhf section inside info.json, sparse task_index
+            raise DatasetFormatError(
+                f"{self.root} is in lhf's earlier layout (the env's task number in task_index, "
+                f"which LeRobot's reader cannot use): run `lhf upgrade {self.root}` once"
+            )
+        lhf_file = self.root / C.LHF_INFO_PATH
+        if not lhf_file.exists():
+            raise DatasetFormatError(
+                f"{self.root} is a LeRobot dataset but not a learning-history dataset: "
+                f"{C.LHF_INFO_PATH} is missing"
+            )
+        try:
+            self.lhf = read_json(lhf_file)
+        except ValueError as exc:
+            raise DatasetFormatError(f"{lhf_file} is not valid JSON: {exc}") from None
+        if not isinstance(self.lhf, dict) or self.lhf.get("layout_version") != C.LAYOUT_VERSION:
+            got = self.lhf.get("layout_version") if isinstance(self.lhf, dict) else None
+            raise DatasetFormatError(
+                f"{lhf_file}: lhf layout version {got!r}, this lhf_hf reads {C.LAYOUT_VERSION}"
             )
         for rel in (C.EPISODES_PATH, C.HISTORIES_PATH, C.TASKS_PATH):
             if not (self.root / rel).exists():
@@ -104,14 +129,10 @@ class HistoryDataset:
         lhf = self.lhf
         return (
             f"HistoryDataset({str(self.root)!r}, env={lhf['env_id']!r}, tasks={self.info['total_tasks']}, "
-            f"histories={self.info['total_histories']}, frames={self.info['total_frames']})"
+            f"histories={lhf['total_histories']}, frames={self.info['total_frames']})"
         )
 
     # ------------------------------------------------------------------ metadata
-    @property
-    def lhf(self) -> dict:
-        return self.info["lhf"]
-
     @property
     def env_id(self) -> str:
         return self.lhf["env_id"]
@@ -178,23 +199,23 @@ class HistoryDataset:
         return pa.concat_tables([pq.read_table(f, columns=columns) for f in self.data_files()])
 
     def task_positions(self) -> dict[int, int]:
-        """task_index -> position (= data file number)."""
+        """task_id (the env's task number) -> position (= data file number = LeRobot task_index)."""
         tasks = self.lhf["tasks"]
         return {int(t): p for p, t in enumerate(tasks)}
 
-    def task_frames(self, task_index: int, columns: list[str] | None = None) -> pa.Table:
-        pos = self.task_positions().get(int(task_index))
+    def task_frames(self, task_id: int, columns: list[str] | None = None) -> pa.Table:
+        pos = self.task_positions().get(int(task_id))
         if pos is None:
             raise UnknownNameError(
-                f"task {task_index} is not in {self.root} (tasks: {self.lhf['tasks'][:10]}...)"
+                f"task {task_id} is not in {self.root} (tasks: {self.lhf['tasks'][:10]}...)"
             )
         return pq.read_table(self.data_files()[pos], columns=columns)
 
-    def task_histories(self, task_index: int) -> TaskHistories:
+    def task_histories(self, task_id: int) -> TaskHistories:
         hist = pq.read_table(self.root / C.HISTORIES_PATH)
-        mask = np.asarray(hist.column(C.TASK_INDEX).to_numpy() == int(task_index))
+        mask = np.asarray(hist.column(C.TASK_ID).to_numpy() == int(task_id))
         return task_histories_from_frames(
-            self.task_frames(task_index), hist.filter(mask), self.horizon
+            self.task_frames(task_id), hist.filter(mask), self.horizon
         )
 
 

@@ -150,7 +150,8 @@ def frames_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
             C.INDEX: pa.array(base + np.arange(N, dtype=np.int64)),
             C.FRAME_INDEX: pa.array(frame_index),
             C.EPISODE_INDEX: pa.array(history_index * E + step // horizon),
-            C.TASK_INDEX: pa.array(np.full(N, th.task, dtype=np.int64)),
+            C.TASK_INDEX: pa.array(np.full(N, position, dtype=np.int64)),
+            C.TASK_ID: pa.array(np.full(N, th.task, dtype=np.int64)),
             C.HISTORY_INDEX: pa.array(history_index),
             C.TIMESTAMP: pa.array((frame_index / C.FPS).astype(np.float32)),
         }
@@ -158,8 +159,34 @@ def frames_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
     return pa.table(cols)
 
 
+#: Per-episode stats LeRobot v3.0 keeps in the episodes table (``stats/{feature}/{stat}``).
+EPISODE_STAT_NAMES = ("min", "max", "mean", "std", "count")
+
+
+def _episode_stats(name: str, arr: np.ndarray, n_episodes: int, horizon: int) -> dict:
+    """``stats/{name}/{stat}`` columns of one feature: each row a list of the feature's d values
+    (``count``: one value), as LeRobot's ``compute_episode_stats`` gives for a vector feature."""
+    x = arr.reshape(n_episodes, horizon, -1).astype(np.float64)  # (episodes, horizon, d)
+    values = {
+        "min": x.min(1),
+        "max": x.max(1),
+        "mean": x.mean(1),
+        "std": x.std(1),
+        "count": np.full((n_episodes, 1), horizon, dtype=np.int64),
+    }  # each (episodes, d) or (episodes, 1)
+    out = {}
+    for stat in EPISODE_STAT_NAMES:
+        v = values[stat]
+        offsets = np.arange(0, v.size + 1, v.shape[1], dtype=np.int32)  # (episodes + 1,)
+        out[f"{C.EPISODE_STATS}/{name}/{stat}"] = pa.ListArray.from_arrays(
+            pa.array(offsets), pa.array(v.reshape(-1))
+        )
+    return out
+
+
 def episodes_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
-    """One row per episode of one task."""
+    """One row per episode of one task: LeRobot v3.0's episode columns (the ``tasks`` strings are
+    added at ``finalize``, which knows them) plus lhf's."""
     H, T = th.num_histories, th.steps
     E = T // horizon
     returns = th.rewards.reshape(H, E, horizon).sum(-1, dtype=np.float64)  # (H, E)
@@ -168,7 +195,8 @@ def episodes_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
     start = position * H * T + (history_index - position * H) * T + ep_in_hist * horizon
     cols = {
         C.EPISODE_INDEX: pa.array(history_index * E + ep_in_hist),
-        C.TASK_INDEX: pa.array(np.full(H * E, th.task, dtype=np.int64)),
+        C.TASK_INDEX: pa.array(np.full(H * E, position, dtype=np.int64)),
+        C.TASK_ID: pa.array(np.full(H * E, th.task, dtype=np.int64)),
         C.HISTORY_INDEX: pa.array(history_index),
         C.EPISODE_IN_HISTORY: pa.array(ep_in_hist),
         C.LENGTH: pa.array(np.full(H * E, horizon, dtype=np.int64)),
@@ -178,6 +206,21 @@ def episodes_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
         cols[C.EPISODE_SUCCESS] = pa.array(th.success.reshape(H, E, horizon).any(-1).reshape(-1))
     cols[C.FROM_INDEX] = pa.array(start)
     cols[C.TO_INDEX] = pa.array(start + horizon)
+    # one data file per task (writer.data_path); the episodes table is one file
+    cols[C.DATA_CHUNK] = pa.array(np.full(H * E, position // C.CHUNKS_SIZE, dtype=np.int64))
+    cols[C.DATA_FILE] = pa.array(np.full(H * E, position % C.CHUNKS_SIZE, dtype=np.int64))
+    cols[C.META_CHUNK] = pa.array(np.zeros(H * E, dtype=np.int64))
+    cols[C.META_FILE] = pa.array(np.zeros(H * E, dtype=np.int64))
+    numeric = {
+        C.OBS: th.obs,
+        C.ACTION: th.actions,
+        C.REWARD: th.rewards,
+        C.NEXT_OBS: th.next_obs,
+        C.OPTIMAL_ACTION: th.optimal_actions,
+    }
+    for name, arr in numeric.items():
+        if arr is not None:
+            cols.update(_episode_stats(name, arr, H * E, horizon))
     return pa.table(cols)
 
 
@@ -192,7 +235,8 @@ def histories_table(th: TaskHistories, position: int, horizon: int) -> pa.Table:
     return pa.table(
         {
             C.HISTORY_INDEX: pa.array(position * H + np.arange(H, dtype=np.int64)),
-            C.TASK_INDEX: pa.array(np.full(H, th.task, dtype=np.int64)),
+            C.TASK_INDEX: pa.array(np.full(H, position, dtype=np.int64)),
+            C.TASK_ID: pa.array(np.full(H, th.task, dtype=np.int64)),
             C.HISTORY_IN_TASK: pa.array(np.arange(H, dtype=np.int64)),
             C.LEARNER: pa.array(list(th.learner), type=pa.string()),
             C.LEARNER_INDEX: pa.array(th.learner_index.astype(np.int64)),
@@ -224,7 +268,7 @@ def task_histories_from_frames(
             return col.flatten().to_numpy(zero_copy_only=False).reshape(H, T, col.type.list_size)
         return col.to_numpy(zero_copy_only=False).reshape(H, T)
 
-    task = frames.column(C.TASK_INDEX)[0].as_py()
+    task = frames.column(C.TASK_ID)[0].as_py()
     return TaskHistories(
         task=task,
         obs=arr(C.OBS),

@@ -24,6 +24,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -203,6 +204,45 @@ def _merge_stats(parts: list[dict]) -> dict:
     return out
 
 
+def task_string(env_id: str, params: dict) -> str:
+    """The task's LeRobot ``task`` string: the env and its task parameters, e.g.
+    ``darkroom goal=(3, 4)``; unique per task, since tasks differ in their parameters."""
+    readable = ", ".join(f"{k}={tuple(v) if isinstance(v, list) else v}" for k, v in params.items())
+    return f"{env_id} {readable}"
+
+
+def _with_task_strings(episodes: pa.Table, task: str) -> pa.Table:
+    strings = pa.array([[task]] * episodes.num_rows, type=pa.list_(pa.string()))
+    return episodes.add_column(1, C.EPISODE_TASKS, strings)
+
+
+def write_tasks_table(
+    root: Path,
+    env_id: str,
+    tasks: list[int],
+    strings: list[str],
+    split_seed: int,
+    train: set[int],
+    validation: set[int],
+) -> None:
+    """``meta/tasks.parquet`` as LeRobot writes it (a pandas frame indexed by the ``task`` string,
+    with the dense ``task_index``), plus lhf's columns: the env's task id, split and parameters."""
+    spec = get_spec(env_id)
+    frame = pd.DataFrame(
+        {
+            C.TASK_INDEX: np.arange(len(tasks), dtype=np.int64),
+            C.TASK_ID: np.asarray(tasks, dtype=np.int64),
+            C.SPLIT: [
+                ("validation" if t in validation else "train") if t in train else "test"
+                for t in tasks
+            ],
+            C.TASK_PARAMS: [json.dumps(spec.task_params(t, split_seed)) for t in tasks],
+        },
+        index=pd.Index(strings, name=C.TASK),
+    )
+    write_parquet_atomic(pa.Table.from_pandas(frame), root / C.TASKS_PATH)
+
+
 def finalize(
     root: str | Path,
     *,
@@ -228,34 +268,23 @@ def finalize(
             f"{tasks[missing[0]]}); run the collection again with --resume"
         )
     markers = [read_json(_part(root, p, "json")) for p in range(len(tasks))]
+    spec = get_spec(env_id)
+    train, _ = spec.split(split_seed)
+    _, validation = spec.validation_split(split_seed)
+    strings = [task_string(env_id, spec.task_params(t, split_seed)) for t in tasks]
+    # LeRobot v3.0: each episode names its task strings; frames name the dense task_index
     episodes = pa.concat_tables(
-        [pq.read_table(_part(root, p, "episodes.parquet")) for p in range(len(tasks))]
+        [
+            _with_task_strings(pq.read_table(_part(root, p, "episodes.parquet")), strings[p])
+            for p in range(len(tasks))
+        ]
     )
     hist = pa.concat_tables(
         [pq.read_table(_part(root, p, "histories.parquet")) for p in range(len(tasks))]
     )
     write_parquet_atomic(episodes, root / C.EPISODES_PATH)
     write_parquet_atomic(hist, root / C.HISTORIES_PATH)
-
-    spec = get_spec(env_id)
-    train, _ = spec.split(split_seed)
-    train = set(train)
-    rows = []
-
-    for t in tasks:
-        params = spec.task_params(t, split_seed)
-        readable = ", ".join(
-            f"{k}={tuple(v) if isinstance(v, list) else v}" for k, v in params.items()
-        )
-        rows.append(
-            {
-                C.TASK_INDEX: t,
-                C.TASK: f"{env_id} {readable}",
-                C.TASK_PARAMS: json.dumps(params),
-                C.SPLIT: "train" if t in train else "test",
-            }
-        )
-    write_parquet_atomic(pa.Table.from_pylist(rows), root / C.TASKS_PATH)
+    write_tasks_table(root, env_id, tasks, strings, split_seed, set(train), set(validation))
     write_json_atomic(_merge_stats([m["stats"] for m in markers]), root / C.STATS_PATH)
 
     fingerprint = hashlib.sha256("".join(m["sha256"] for m in markers).encode()).hexdigest()
@@ -263,34 +292,37 @@ def finalize(
     for name, names in (feature_names or {}).items():
         if name in feats:
             feats[name]["names"] = names
-    size_mb = sum((root / data_path(p)).stat().st_size for p in range(len(tasks))) / 2**20
     total_episodes = episodes.num_rows
+    # meta/info.json holds exactly LeRobot v3.0's fields (its DatasetInfo warns of any other)
     info = {
         "codebase_version": C.CODEBASE_VERSION,
         "robot_type": None,
         "total_episodes": total_episodes,
         "total_frames": len(tasks) * frames_per_task,
         "total_tasks": len(tasks),
-        "total_histories": hist.num_rows,
         "chunks_size": C.CHUNKS_SIZE,
-        "data_files_size_in_mb": round(size_mb, 3),
+        "data_files_size_in_mb": C.DATA_FILES_SIZE_IN_MB,
+        "video_files_size_in_mb": C.VIDEO_FILES_SIZE_IN_MB,
         "fps": C.FPS,
         "splits": {"train": f"0:{total_episodes}"},
         "data_path": C.DATA_PATH,
         "video_path": None,
         "features": feats,
-        "lhf": {
-            **lhf_meta,
-            "env_id": env_id,
-            "horizon": horizon,
-            "histories_per_task": histories,
-            "steps_per_history": steps,
-            "episodes_per_history": steps // horizon,
-            "split_seed": split_seed,
-            "fingerprint": fingerprint,
-            "created": datetime.now(UTC).isoformat(timespec="seconds"),
-        },
     }
+    lhf_info = {
+        **lhf_meta,
+        "layout_version": C.LAYOUT_VERSION,
+        "env_id": env_id,
+        "horizon": horizon,
+        "total_histories": hist.num_rows,
+        "histories_per_task": histories,
+        "steps_per_history": steps,
+        "episodes_per_history": steps // horizon,
+        "split_seed": split_seed,
+        "fingerprint": fingerprint,
+        "created": lhf_meta.get("created") or datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    write_json_atomic(lhf_info, root / C.LHF_INFO_PATH)
     write_json_atomic(info, root / C.INFO_PATH)
     ds = load_histories(root)
     write_card(ds)

@@ -15,6 +15,7 @@ import shutil
 import time
 from pathlib import Path
 
+from lhf_hf import constants as C
 from lhf_hf.collection import collect
 from lhf_hf.collection.batched_collector import resolve_ppo_backend
 from lhf_hf.configs import CollectConfig
@@ -403,7 +404,7 @@ def _other_data(evals: dict, work: Path) -> list[dict]:
         try:
             model = read_json(ev.path(work) / "eval" / EVAL_RESULTS)["model"]
             used = model["dataset"]["fingerprint"]
-            here = read_json(data.path(work) / "data" / "meta" / "info.json")["lhf"]
+            here = read_json(data.path(work) / "data" / C.LHF_INFO_PATH)
         except (OSError, ValueError, KeyError, TypeError):
             continue  # nothing recorded to compare
         if (

@@ -199,7 +199,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     # What the model saw, in its config (so every checkpoint-N carries it): evaluation refuses
     # these tasks as "unseen" (they are not), and takes its default split from here.
     split_seed = int(ds.lhf.get("split_seed", 0))
-    data_tasks = sorted({int(t) for t in ds.histories.data.table.column("task_index").to_pylist()})
+    data_tasks = sorted({int(t) for t in ds.histories.data.table.column(C.TASK_ID).to_pylist()})
     config.train_tasks, config.split_seed = data_tasks, split_seed
     if config.objective != cfg.objective:
         raise UserError(

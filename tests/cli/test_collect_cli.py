@@ -67,7 +67,7 @@ def test_batched_options_reach_the_dataset(tmp_path, capsys):
     base = ["collect", "darkroom", "--collector", "batched", "--tasks", "3,40,62"]
     base += ["--histories", "2", "--steps", "40", "--no-progress"]
     assert main([*base, "--out", str(out), "--tasks-per-chunk", "2"]) == 0
-    info = json.loads((out / "meta" / "info.json").read_text())
+    info = json.loads((out / "meta" / "lhf_info.json").read_text())
     assert '"tasks_per_chunk": 2' in json.dumps(info)  # the flag is not dropped on the way
     if not torch.cuda.is_available():  # a clear error before any work
         assert main([*base, "--out", str(tmp_path / "g"), "--device", "cuda"]) == 1

@@ -57,7 +57,7 @@ def test_filter_with_materialize_stays_a_pair(small_darkroom_batched, tmp_path):
         )
         assert verify(sel)["problems"] == [] and verify(mat)["problems"] == []
         lam_sel = json.loads((sel / "filter_config.json").read_text())["filter"]["lam"]
-        lam_mat = json.loads((mat / "meta" / "info.json").read_text())["lhf"]["derived_from"]
+        lam_mat = json.loads((mat / "meta" / "lhf_info.json").read_text())["derived_from"]
         assert lam_sel == lam_mat["filter"]["lam"] == 0.0, delay
         assert main([*first, "--overwrite"]) == 0  # back to the old pair for the next delay
         old = tree_digest(sel), tree_digest(mat)

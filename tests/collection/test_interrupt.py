@@ -114,8 +114,8 @@ def test_sigterm_stops_queued_and_running_tasks(tmp_path):
         text=True,
     )
     assert r.returncode == 0, r.stderr[-2000:]
-    info = load_histories(out).info
-    assert (info["total_tasks"], info["total_histories"]) == (TASKS, TASKS * 4)
+    ds = load_histories(out)
+    assert (ds.info["total_tasks"], ds.lhf["total_histories"]) == (TASKS, TASKS * 4)
 
 
 @pytest.mark.slow

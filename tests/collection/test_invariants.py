@@ -51,7 +51,7 @@ def test_next_state_chains_within_episodes_and_is_true_at_the_end(collected):
 
 def test_reward_and_oracle_follow_the_task(collected):
     t, obs, nxt = frames(collected)
-    task = t.column(C.TASK_INDEX).to_numpy()
+    task = t.column(C.TASK_ID).to_numpy()
     goal = np.stack(np.divmod(task, 9), axis=1)
     np.testing.assert_array_equal(
         t.column(C.REWARD).to_numpy(), np.all(nxt == goal, axis=1).astype(np.float32)
@@ -89,7 +89,7 @@ def test_histories_are_contiguous_slices_with_whole_episodes(collected):
 
 def test_noisy_protocol_has_exactly_30_percent_random(collected):
     hist = collected.histories.to_pandas()
-    for _, group in hist.groupby(C.TASK_INDEX):
+    for _, group in hist.groupby(C.TASK_ID):
         assert (group[C.LEARNER] == "random").sum() == 3 and (group[C.LEARNER] == "ppo").sum() == 7
         assert (
             group[group[C.LEARNER] == "ppo"][C.SEED].nunique() == 1

@@ -12,11 +12,11 @@ from lhf_hf.filtering.scores import score_arrays
 
 
 def table(returns_per_task: dict[int, np.ndarray]) -> datasets.Dataset:
-    rows = {"task_index": [], "history_index": [], "returns": []}
+    rows = {"task_id": [], "history_index": [], "returns": []}
     h = 0
     for task, r in returns_per_task.items():
         for row in r:
-            rows["task_index"].append(task)
+            rows["task_id"].append(task)
             rows["history_index"].append(h)
             rows["returns"].append(row.tolist())
             h += 1
@@ -78,13 +78,13 @@ def test_resample_properties(spec, strategy, lam, seed):
     again = lhf_resample(ds, lam=lam, strategy=strategy, seed=seed, r_max=20.0).to_pandas()
     assert sel.equals(again)  # same seed, same selection
     for t, r in returns.items():
-        rows = sel[sel.task_index == t]
+        rows = sel[sel.task_id == t]
         assert rows["count"].sum() == len(r)  # the task keeps its size
         assert (rows["probability"] > 0).all()  # P = 0 is never selected
         u = score_arrays(r, 20.0, lam)["score"]
         if u.max() > u.min():
             best = int(np.argmax(u))
-            first = int(ds.filter(lambda x, t=t: x["task_index"] == t)["history_index"][0])
+            first = int(ds.filter(lambda x, t=t: x["task_id"] == t)["history_index"][0])
             assert first + best in rows["history_index"].tolist()  # the best (P = 1) is always kept
         else:
             assert (rows["count"] == 1).all() and len(rows) == len(r)  # all alike: unchanged
@@ -114,7 +114,7 @@ def test_single_history_task_unchanged():
     sel = lhf_resample(
         table({0: np.array([[1.0, 2.0]]), 1: np.array([[0, 1], [1, 1], [3, 0.0]])}), r_max=3.0
     )
-    assert sel.to_pandas().query("task_index == 0")["count"].tolist() == [1]
+    assert sel.to_pandas().query("task_id == 0")["count"].tolist() == [1]
 
 
 @pytest.mark.parametrize(
@@ -131,13 +131,13 @@ def test_single_history_task_unchanged():
 def test_errors_name_the_problem(returns, kwargs, match):
     ds = datasets.Dataset.from_dict(
         {
-            "task_index": [0] * len(returns),
+            "task_id": [0] * len(returns),
             "history_index": list(range(len(returns))),
             "returns": returns,
         },
         features=datasets.Features(
             {
-                "task_index": datasets.Value("int64"),
+                "task_id": datasets.Value("int64"),
                 "history_index": datasets.Value("int64"),
                 "returns": datasets.List(datasets.Value("float64")),
             }
@@ -149,9 +149,7 @@ def test_errors_name_the_problem(returns, kwargs, match):
 
 def test_missing_columns():
     with pytest.raises(ValueError, match="lacks the columns"):
-        lhf_resample(
-            datasets.Dataset.from_dict({"task_index": [0], "history_index": [0]}), r_max=1.0
-        )
+        lhf_resample(datasets.Dataset.from_dict({"task_id": [0], "history_index": [0]}), r_max=1.0)
 
 
 def test_meta_world_needs_r_max():

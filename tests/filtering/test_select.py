@@ -29,7 +29,7 @@ def selection(small_darkroom):
 
 def test_selection_keeps_task_sizes_and_prefers_ppo(selection, small_darkroom):
     t = selection.table.to_pandas()
-    assert t.groupby(C.TASK_INDEX)["count"].sum().tolist() == [10, 10, 10]
+    assert t.groupby(C.TASK_ID)["count"].sum().tolist() == [10, 10, 10]
     s = selection.summary()
     assert s["share_in_source"]["random"] == pytest.approx(0.3)
     assert s["share_in_selection"]["random"] < 0.3
@@ -69,7 +69,7 @@ def test_filter_frames_drops_histories(small_darkroom):
 
 def test_materialize(selection, small_darkroom, tmp_path):
     new = materialize(small_darkroom, selection, tmp_path / "m", progress=False)
-    assert new.info["total_histories"] == 30 and new.info["total_frames"] == 6000
+    assert new.lhf["total_histories"] == 30 and new.info["total_frames"] == 6000
     d = new.lhf["derived_from"]
     assert (
         d["op"] == "lhf"

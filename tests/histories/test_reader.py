@@ -26,7 +26,8 @@ def test_load_dataset_default_and_tables(small_darkroom):
 def test_load_histories_object(small_darkroom):
     ds = load_histories(small_darkroom.root)
     assert ds.env_id == "darkroom" and ds.horizon == 20
-    assert ds.tasks.to_pandas()[C.TASK_INDEX].tolist() == [3, 40, 62]
+    assert ds.tasks.to_pandas()[C.TASK_ID].tolist() == [3, 40, 62]
+    assert ds.tasks.to_pandas()[C.TASK_INDEX].tolist() == [0, 1, 2]
     assert ds.tasks.to_pandas()[C.SPLIT].tolist() == ["train", "train", "test"]  # split seed 0
     assert json.loads(ds.tasks[1][C.TASK_PARAMS]) == {"goal": [4, 4]}
     assert ds.frames.num_rows == 6000
@@ -46,7 +47,9 @@ def test_card_and_plot(small_darkroom):
         "episodes": "meta/episodes/*/*.parquet",
         "histories": "meta/histories/*/*.parquet",
     }
-    assert "| `observation.state` | int64 | (2,) |" in text and "ppo: 7, random: 3" in text
+    assert (
+        "| `observation.state` | int64 | (2,) |" in text and "ppo 21, random 9" in text
+    )  # 3 tasks x (7 PPO + 3 random)
     assert "n_steps" in text and "stable-baselines3" in text
     png = (small_darkroom.root / C.CURVE_PATH).read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000

@@ -42,12 +42,19 @@ def olah(hub_store, tmp_path_factory):
 
 @pytest.fixture
 def hub_client(tmp_path):
-    """``hub_client(endpoint, code, *args, token=...)``: run ``code`` in a fresh Python process whose
+    """``hub_client(endpoint, code, *args, token=..., python=...)``: run ``code`` in a fresh Python
+    process (``python``: another venv's interpreter, e.g. LeRobot's) whose
     HF_ENDPOINT / HF_HOME / HF_HUB_DISABLE_XET are set before any import, under the loopback guard
     of ``_client.py``.  Returns the CompletedProcess (stdout/stderr as text)."""
     counter = iter(range(1000))
 
-    def run(endpoint: str | None, code: str, *args: str, token: str | None = "hf_fake_token"):
+    def run(
+        endpoint: str | None,
+        code: str,
+        *args: str,
+        token: str | None = "hf_fake_token",
+        python: str = sys.executable,
+    ):
         script = tmp_path / f"client_{next(counter)}.py"
         script.write_text(code)
         env = {
@@ -66,7 +73,7 @@ def hub_client(tmp_path):
         if token is not None:
             env["HF_TOKEN"] = token
         return subprocess.run(
-            [sys.executable, str(HERE / "_client.py"), str(script), *args],
+            [python, str(HERE / "_client.py"), str(script), *args],
             env=env,
             cwd=tmp_path,
             capture_output=True,

@@ -147,7 +147,7 @@ def test_dpt_labels_are_the_oracle_actions(small_darkroom):
     """Darkroom's oracle by hand: toward the goal (task = row * 9 + col), rows first, then columns."""
     ds = small_darkroom
     arrays = load_arrays(ds, integer_states=True, discrete_actions=True)
-    task_of_row = ds.frame_table([C.TASK_INDEX]).column(C.TASK_INDEX).to_numpy()
+    task_of_row = ds.frame_table([C.TASK_ID]).column(C.TASK_ID).to_numpy()
     config = icrl_config(
         "tiny", objective="dpt", state_dim=2, state_bins=9, action_dim=5, context_length=40
     )
