@@ -8,6 +8,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Literal, get_args
 
+from lhf_hf import constants as C
 from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
 from lhf_hf.errors import UserError
 
@@ -291,4 +292,7 @@ class CollectConfig:
             d.pop("device")  # the default, absent from the identities of older datasets
         if self.collector == "sb3" or self.ppo_backend == "torch":
             d.pop("ppo_backend")  # SB3 has its own; "torch" is what datasets before the field used
+        # the layout written: an unfinished collection of another layout is not resumed into this
+        # one, and a reproduction's cached collection of another layout is collected anew
+        d["layout_version"] = C.LAYOUT_VERSION
         return d

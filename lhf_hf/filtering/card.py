@@ -6,6 +6,7 @@ from pathlib import Path
 
 from huggingface_hub import DatasetCard, DatasetCardData
 
+from lhf_hf.utils.hub import public_source
 from lhf_hf.utils.io import read_json
 from lhf_hf.utils.templates import template_path
 
@@ -35,10 +36,22 @@ def render_selection_card(path: str | Path, load_path: str | None = None) -> str
             {"config_name": "scores", "data_files": SCORES_FILE},
         ],
     )
+    source = str(src.get("path", "?"))
+    local = source.startswith("/")
+    # the train command runs as written: a Hub source by its id; a local one by its path on this
+    # machine, and in a pushed card (load_path given) by a placeholder the text explains
+    dataset_arg = "DATASET" if local and load_path else source
     return DatasetCard.from_template(
         card_data,
         template_path=str(template_path("selection_card.md")),
-        source=src.get("path", "?"),
+        source=public_source(source) if load_path else f"`{source}`",
+        dataset_arg=dataset_arg,
+        dataset_note=(
+            f"(`DATASET`: the source `{Path(source).name}` was a local folder; push it with "
+            "`lhf push` and name its repo)"
+            if dataset_arg == "DATASET"
+            else ""
+        ),
         env_id=env_id,
         strategy=flt["strategy"],
         lam=flt["lam"],

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from huggingface_hub import DatasetCard, DatasetCardData
 
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
+from lhf_hf.utils.hub import public_source
 from lhf_hf.utils.io import write_text_atomic
 from lhf_hf.utils.templates import template_path
 
@@ -165,14 +164,6 @@ def _kind(collect: dict, derived: dict | None, algo: str) -> list[str]:
     if derived:
         out.append(str(derived.get("op", "derived")))
     return out
-
-
-def public_source(source: str) -> str:
-    """A source as a card may show it: a Hub repo id as it is, a local folder by its name only
-    (a card is pushed; the machine's paths are not the reader's)."""
-    if "/" in source and not source.startswith(("/", ".", "~")) and not Path(source).exists():
-        return f"`{source}`"
-    return f"a local dataset `{Path(source).name}`"
 
 
 def _how_collected(collect: dict, lhf: dict) -> str:

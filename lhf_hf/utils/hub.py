@@ -15,6 +15,7 @@ token and cache come from the usual ``HF_ENDPOINT`` / ``HF_TOKEN`` / ``HF_HOME``
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -158,6 +159,15 @@ def source_of(spec: str | Path, path: Path) -> str:
     return str(path.resolve())
 
 
+def public_source(source: str) -> str:
+    """A recorded source as a card may show it: a Hub snapshot (``org/name@commit``) as it is, a
+    local folder (recorded absolute by ``source_of``) by its name only: a card is pushed, and the
+    machine's paths are not the reader's."""
+    if str(source).startswith("/"):
+        return f"a local dataset `{Path(source).name}`"
+    return f"`{source}`"
+
+
 # ---------------------------------------------------------------------------- push
 def upload_files(root: Path) -> list[str]:
     """Relative paths (posix) of the files ``push`` uploads from ``root``, sorted.
@@ -188,10 +198,47 @@ def upload_files(root: Path) -> list[str]:
     return sorted(out)
 
 
-def pushed_manifest(root: Path, files: list[str]) -> bytes | None:
+def _without_local_paths(value):
+    """``value`` (parsed JSON) with every absolute path string replaced by ``local:NAME``."""
+    if isinstance(value, dict):
+        return {k: _without_local_paths(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_without_local_paths(v) for v in value]
+    if isinstance(value, str) and value.startswith("/") and "\n" not in value:
+        return f"local:{Path(value).name}"
+    return value
+
+
+def public_contents(root: Path, files: list[str]) -> dict[str, bytes]:
+    """What ``push`` uploads in place of some files: the JSON records (a selection's source, a
+    derived dataset's, a model's data) with this machine's absolute paths reduced to ``local:NAME``
+    (a pushed artifact names no path of the machine that made it; provenance keeps the
+    fingerprints).  Files that hold no such path are uploaded as they are (not listed)."""
+    out = {}
+    for f in files:
+        if not f.endswith(".json") or f == MARKER:
+            continue
+        raw = (root / f).read_bytes()
+        if b'"/' not in raw:
+            continue
+        try:
+            data = json.loads(raw)
+        except ValueError:
+            continue  # not ours to rewrite: uploaded as it is
+        public = _without_local_paths(data)
+        if public != data:
+            out[f] = (json.dumps(public, indent=2) + "\n").encode()
+    return out
+
+
+def pushed_manifest(
+    root: Path, files: list[str], replaced: dict[str, bytes] | None = None
+) -> bytes | None:
     """The output marker a push uploads beside the files (``utils.outputs``): the folder's kind,
-    and the SHA-256 of each uploaded file, the card left out (the push renders its own).  A load
-    from the Hub checks the downloaded snapshot against it (``resolve``).  None: no marker."""
+    and the SHA-256 of each uploaded file (of its ``replaced`` contents where given), the card
+    left out (the push renders its own).  A load from the Hub checks the downloaded snapshot
+    against it (``resolve``).  None: no marker."""
+    replaced = replaced or {}
     try:
         marker = read_json(root / MARKER)
     except (OSError, ValueError):
@@ -200,7 +247,11 @@ def pushed_manifest(root: Path, files: list[str]) -> bytes | None:
         "kind": marker.get("kind"),
         "lhf_hf": marker.get("lhf_hf"),
         "mutable": sorted({*marker.get("mutable", ()), C.CARD_PATH}),
-        "files": {f: sha256_file(root / f) for f in files if f != C.CARD_PATH},
+        "files": {
+            f: hashlib.sha256(replaced[f]).hexdigest() if f in replaced else sha256_file(root / f)
+            for f in files
+            if f != C.CARD_PATH
+        },
     }
     return json.dumps(pushed, indent=2, sort_keys=True).encode()
 
@@ -274,9 +325,14 @@ def push_folder(
     _require_token(token)
     branch = revision or "main"
     files = upload_files(path)
-    ops = [CommitOperationAdd(f, str(path / f)) for f in files if f != C.CARD_PATH]
+    public = public_contents(path, files)
+    ops = [
+        CommitOperationAdd(f, public[f] if f in public else str(path / f))
+        for f in files
+        if f != C.CARD_PATH
+    ]
     ops.append(CommitOperationAdd(C.CARD_PATH, card.encode()))
-    manifest = pushed_manifest(path, files)
+    manifest = pushed_manifest(path, files, public)
     if manifest is not None:
         ops.append(CommitOperationAdd(MARKER, manifest))
     api = HfApi(token=token)

@@ -191,3 +191,30 @@ def test_an_interrupted_overwrite_keeps_selection_and_materialised_data_paired(
                progress=False)  # fmt: skip
     assert load_histories(mat).lhf["derived_from"]["filter"]["lam"] == 0.0
     assert json.loads((sel / "filter_config.json").read_text())["filter"]["lam"] == 0.0
+
+
+@pytest.mark.slow
+def test_selection_card_commands_run_and_a_pushed_card_names_no_local_path(
+    small_darkroom, tmp_path, monkeypatch
+):
+    import re
+    import shlex
+
+    from lhf_hf.filtering.card import render_selection_card
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["filter", str(small_darkroom.root), "--out", "sel", "--no-progress"]) == 0
+    card = (tmp_path / "sel" / "README.md").read_text()
+    line = next(x for x in card.splitlines() if x.startswith("lhf train"))
+    assert f"--dataset {small_darkroom.root.resolve()}" in line  # the recorded source, runnable
+    # as written, plus the flags that keep a test short (they override none of the written ones)
+    args = shlex.split(line)[1:] + ["--preset", "tiny", "--max-steps", "2", "--batch-size", "4"]
+    assert main(args) == 0
+    assert (tmp_path / "runs" / "ad-lhf" / "model.safetensors").exists()
+    snippet = re.findall(r"```python\n(.*?)```", card, flags=re.S)[0]
+    exec(snippet, {})  # noqa: S102 - the card's own snippet, as a user would paste it
+
+    pushed = render_selection_card(tmp_path / "sel", load_path="org/sel")
+    assert str(small_darkroom.root.resolve()) not in pushed and str(tmp_path) not in pushed
+    assert "--dataset DATASET --selection org/sel" in pushed
+    assert f"local dataset `{small_darkroom.root.name}`" in pushed

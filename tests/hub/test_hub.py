@@ -187,6 +187,13 @@ def test_selection_and_checkpoint_round_trip(
     assert f'AutoModel.from_pretrained("{model_repo}")' in (model_git / "README.md").read_text()
     sel_card = (fake_hub.repo_path("datasets", *sel_repo.split("/")) / "README.md").read_text()
     assert _card_meta(sel_card)["configs"][0]["data_files"] == "selection.parquet"
+    # no path of this machine in anything pushed with the dataset or the selection
+    for repo in (ds_repo, sel_repo):
+        git_repo = fake_hub.repo_path("datasets", *repo.split("/"))
+        for f in _git(git_repo, "ls-files").splitlines():
+            if f.endswith((".md", ".json")):
+                text = (git_repo / f).read_text()
+                assert str(checkpoint) not in text and str(small_darkroom_batched.root) not in text, f
 
     load = f"""
 import json
