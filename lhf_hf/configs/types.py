@@ -71,3 +71,24 @@ def check_types(config: Any) -> None:
                 f"{type(config).__name__}.{f.name} must be {_name(hints[f.name])}, "
                 f"got {value!r}{note}"
             )
+
+
+def config_from_record(cls, record: Any, where: str):
+    """``cls(**record)`` for a config read back from an artifact's JSON (``where`` names the file
+    and field): anything but an object of ``cls``'s fields is one ``UserError`` naming the file,
+    not a ``TypeError`` from inside the constructor."""
+    if not isinstance(record, dict):
+        raise UserError(
+            f"{where} is {type(record).__name__}, not an object of {cls.__name__} fields"
+        )
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(record) - known)
+    if unknown:
+        raise UserError(
+            f"{where} has fields {cls.__name__} does not know ({', '.join(unknown)}): the file is "
+            "damaged or written by another lhf_hf version"
+        )
+    try:
+        return cls(**record)
+    except UserError as exc:
+        raise UserError(f"{where}: {exc}") from None

@@ -20,6 +20,7 @@ from datasets.table import InMemoryTable
 
 from lhf_hf import constants as C
 from lhf_hf.configs.filter import FilterConfig
+from lhf_hf.configs.types import config_from_record
 from lhf_hf.envs import get_spec
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.hub import resolve
@@ -265,9 +266,12 @@ def load_selection(path: str | Path) -> Selection:
                 f"{path} is not a selection folder: {f} is missing (made by `lhf filter`)"
             )
     meta = read_json(path / CONFIG_FILE)
-    return Selection(
-        pq.read_table(path / SCORES_FILE), FilterConfig(**meta["filter"]), meta["source"]
-    )
+    if not isinstance(meta, dict) or not isinstance(meta.get("source"), dict):
+        raise UserError(
+            f"{path / CONFIG_FILE} has no 'source' object: damaged or not written by `lhf filter`"
+        )
+    config = config_from_record(FilterConfig, meta.get("filter"), f"{path / CONFIG_FILE} 'filter'")
+    return Selection(pq.read_table(path / SCORES_FILE), config, meta["source"])
 
 
 def histories_fingerprint(ds) -> str:

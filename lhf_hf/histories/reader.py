@@ -45,6 +45,38 @@ class DatasetFormatError(UserError):
     """The folder is not a (complete) learning-history dataset in our layout."""
 
 
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+#: The fields the readers and checks use, with the test each must pass (a damaged file is named
+#: with its field, not met later as a TypeError).
+INFO_FIELDS = {
+    "total_frames": _is_int,
+    "total_episodes": _is_int,
+    "total_tasks": _is_int,
+    "features": lambda x: isinstance(x, dict),
+}
+LHF_FIELDS = {
+    "env_id": lambda x: isinstance(x, str),
+    "horizon": lambda x: _is_int(x) and x > 0,
+    "tasks": lambda x: isinstance(x, list) and bool(x) and all(_is_int(t) for t in x),
+    "histories_per_task": _is_int,
+    "steps_per_history": _is_int,
+    "episodes_per_history": _is_int,
+    "total_histories": _is_int,
+    "split_seed": _is_int,
+    "fingerprint": lambda x: isinstance(x, str),
+}
+
+
+def _check_fields(record: dict, fields: dict, where: Path) -> None:
+    bad = [name for name, ok in fields.items() if not ok(record.get(name))]
+    if bad:
+        shown = ", ".join(f"{n}={record.get(n)!r}"[:60] for n in bad)
+        raise DatasetFormatError(f"{where}: damaged or not written by lhf_hf ({shown})")
+
+
 def _in_memory(table: pa.Table) -> datasets.Dataset:
     return datasets.Dataset(InMemoryTable(table))
 
@@ -107,6 +139,8 @@ class HistoryDataset:
             raise DatasetFormatError(
                 f"{lhf_file}: lhf layout version {got!r}, this lhf_hf reads {C.LAYOUT_VERSION}"
             )
+        _check_fields(self.info, INFO_FIELDS, info_file)
+        _check_fields(self.lhf, LHF_FIELDS, lhf_file)
         for rel in (C.EPISODES_PATH, C.HISTORIES_PATH, C.TASKS_PATH):
             if not (self.root / rel).exists():
                 raise DatasetFormatError(f"{self.root}: {rel} is missing")
