@@ -29,6 +29,7 @@ from lhf_hf.utils.versions import library_versions
 
 from .resample import resample_task
 from .scores import score_arrays
+from .within_task import within_task
 
 SELECTION_FILE = "selection.parquet"
 SCORES_FILE = "scores.parquet"  # every history, rejected ones included (count 0)
@@ -236,6 +237,8 @@ class Selection:
             out["mean_return_rejected"] = (
                 float(mean_ret[counts == 0].mean()) if (counts == 0).any() else None
             )
+            # the pooled means above mix tasks (Simpson's paradox): the same, task by task
+            out["within_task"] = within_task(t.column(C.TASK_ID).to_numpy(), mean_ret, counts)
         return out
 
     def save(self, out: str | Path, summary: dict | None = None) -> Path:

@@ -103,6 +103,15 @@ def _label(cell: dict) -> str:
     return cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
 
 
+def _within(w: dict | None) -> str:
+    if not w or w.get("kept_minus_rejected") is None:
+        return "-"
+    return (
+        f"{w['kept_minus_rejected']:+.2f} ({w['tasks_kept_higher']} / {w['tasks_kept_lower']} "
+        f"of {w['tasks_compared']})"
+    )
+
+
 def _num(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
@@ -190,15 +199,19 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     if selections := summary.get("selections"):
         lines += [
             "", "## What LHF kept", "",
-            "Per run: histories kept (at least once) and rejected and each group's mean return; "
-            "`resampled` weighs the kept ones by how often the resampling drew them.", "",
-            "| env | arm | run | kept / rejected | source | kept | rejected | resampled |",
-            "|---|---|---|---|---|---|---|---|",
+            "Per run: histories kept (at least once) and rejected and each group's mean return, "
+            "pooled over tasks; `resampled` weighs the kept ones by how often the resampling drew "
+            "them. Pooled means mix tasks (Simpson's paradox): `within tasks` is the mean over "
+            "tasks of kept minus rejected, with the tasks where kept return more / less.", "",
+            "| env | arm | run | kept / rejected | source | kept | rejected | resampled "
+            "| within tasks |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
         lines += [
             f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
             f"| {_num(s['mean_return_source'])} | {_num(s['mean_return_selected_unique'])} "
-            f"| {_num(s['mean_return_rejected'])} | {_num(s['mean_return_selection'])} |"
+            f"| {_num(s['mean_return_rejected'])} | {_num(s['mean_return_selection'])} "
+            f"| {_within(s.get('within_task'))} |"
             for s in selections
         ]
     if other := summary.get("other_data"):

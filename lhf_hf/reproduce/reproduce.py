@@ -390,7 +390,8 @@ def _selection_summary(folder: Path) -> dict:
     """What a selection kept: histories kept and rejected, and each group's mean return."""
     found = read_json(folder / "selection" / CONFIG_FILE)["summary"]
     fields = ("histories", "selected_unique", "rejected", "mean_return_source",
-              "mean_return_selected_unique", "mean_return_rejected", "mean_return_selection")  # fmt: skip
+              "mean_return_selected_unique", "mean_return_rejected", "mean_return_selection",
+              "within_task")  # fmt: skip
     return {k: found.get(k) for k in fields}
 
 
