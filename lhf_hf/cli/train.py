@@ -23,7 +23,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
             "-m lhf_hf train ...`."
         ),
     )
-    fields = add_params(p, TrainConfig, skip=("resume", "overwrite"))
+    fields = add_params(
+        p, TrainConfig, skip=("resume", "overwrite"), flags={"training_args": "--training-arg"}
+    )
     fields += add_params(
         p, TrainConfig, only=("resume", "overwrite"), group=p.add_mutually_exclusive_group()
     )

@@ -46,9 +46,10 @@ def _arms(exp: Experiment) -> list[str]:
     return [arm for arm, _ in exp.filter_arms(0)]
 
 
-#: TrainConfig fields that say where the data and the model are, not what is trained: the stage's
-#: hash covers its inputs' hashes instead.
-TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_hub", "hub_private")
+#: TrainConfig fields that say where the data, the model and the logs are, not what is trained: the
+#: stage's hash covers its inputs' hashes instead.
+TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_hub", "hub_private",
+                "report_to")  # fmt: skip
 
 
 def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
@@ -106,6 +107,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                 for arm, sel in [("baseline", None), *arms]:
                     train_cfg = exp.train_config(obj, run, dataset="", selection=None, out="")
                     tc = {k: v for k, v in train_cfg.to_dict().items() if k not in TRAIN_PLACES}
+                    if not tc["training_args"]:  # none: the hash of a stage from before the field
+                        del tc["training_args"]
                     tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
