@@ -23,6 +23,8 @@ ARGS = [
     "40",
     "--workers",
     "1",
+    "--collector",
+    "sb3",
     "--no-progress",
 ]
 
