@@ -16,6 +16,7 @@ from contextlib import nullcontext
 
 from lhf_hf import __version__
 from lhf_hf.errors import UserError
+from lhf_hf.utils.launcher import launch_mismatch
 from lhf_hf.utils.signals import (
     Terminated,
     ignore_interrupts,
@@ -25,6 +26,7 @@ from lhf_hf.utils.signals import (
 )
 
 from . import (
+    accelerate_config,
     collect,
     compare,
     derive,
@@ -51,6 +53,7 @@ COMMANDS = [
     reproduce,
     verify,
     upgrade,
+    accelerate_config,
 ]
 
 
@@ -77,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    mismatch = launch_mismatch()
+    if mismatch:  # said first: the run that follows is not the one asked for
+        print(f"lhf {args.command}: warning: {mismatch}", file=sys.stderr)
     program = argv is None
     if program:
         interrupts_raise_once()

@@ -19,8 +19,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help=HELP,
         description=HELP
         + (
-            ". Runs as is or under `accelerate launch --config_file training/accelerate/cpu_2proc.yaml "
-            "-m lhf_hf train ...`."
+            '. Runs as is or under `accelerate launch --config_file "$(lhf accelerate-config)" '
+            "-m lhf_hf train ...` (CPU data parallelism, 2 processes)."
         ),
     )
     fields = add_params(

@@ -1,7 +1,7 @@
 """``train(cfg)``: pretrain an AD / DPT / DICP model with ``transformers.Trainer`` (docs/design.md 6).
 
-Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the committed
-``training/accelerate/cpu_2proc.yaml``): the global batch is split across processes and the model's
+Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the shipped
+``lhf_hf/launch/cpu_2proc.yaml``, ``lhf accelerate-config``): the global batch is split across processes and the model's
 ``accepts_loss_kwargs = False`` keeps the logged loss on the same scale as one process.
 """
 
