@@ -214,11 +214,14 @@ def values(args: argparse.Namespace, names: Iterable[str]) -> dict[str, Any]:
     return {n: getattr(args, n) for n in names if hasattr(args, n)}
 
 
-def quiet_libraries() -> None:
-    """``--no-progress``: also the bars transformers and datasets draw themselves (loading and
-    writing weights, building tables)."""
-    import datasets  # deferred: heavy, and only when asked
-    from transformers.utils import logging as hf_logging  # deferred: as above
+def add_progress(parser: argparse.ArgumentParser) -> list[str]:
+    """``--no-progress`` for a long command: the one definition, ``OutputOptions.progress``
+    (commands that take ``OutputOptions`` whole get it with the rest)."""
+    from lhf_hf.configs.commands import OutputOptions  # deferred: configs import numpy
 
-    hf_logging.disable_progress_bar()
-    datasets.disable_progress_bars()
+    return add_params(parser, OutputOptions, only=("progress",))
+
+
+def progress(args: argparse.Namespace) -> bool:
+    """Whether the command line asked for progress bars (``--no-progress``: False)."""
+    return getattr(args, "progress", True)

@@ -17,6 +17,7 @@ from contextlib import nullcontext
 from lhf_hf import __version__
 from lhf_hf.errors import UserError
 from lhf_hf.utils.launcher import launch_mismatch
+from lhf_hf.utils.progress import library_bars
 from lhf_hf.utils.signals import (
     Terminated,
     ignore_interrupts,
@@ -39,6 +40,7 @@ from . import (
     upgrade,
     verify,
 )
+from .flags import progress
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
 COMMANDS = [
@@ -107,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace, program: bool) -> int:
     """The command, with the outcomes every command shares turned into messages and exit codes."""
     try:
-        with nullcontext() if program else sigterm_raises():  # kill / timeout: as Ctrl-C
+        # kill / timeout: as Ctrl-C; --no-progress: the libraries' bars too, for every command
+        with nullcontext() if program else sigterm_raises(), library_bars(progress(args)):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         if program:  # also after an interrupt some library code raised itself

@@ -139,7 +139,12 @@ def _run_sb3(
     todo = [p for p in mine if not task_done(out, p, config.frames_per_task)]
     config_dict = config.to_dict()
     bar = _Progress(
-        config, len(mine), len(mine) - len(todo), ranks, progress, f"sb3, {config.workers} worker(s)"
+        config,
+        len(mine),
+        len(mine) - len(todo),
+        ranks,
+        progress,
+        f"sb3, {config.workers} worker(s)",
     )
     try:
         if config.workers == 1 or len(todo) <= 1:

@@ -53,7 +53,9 @@ def test_same_seed_same_data(tmp_path):
 def test_ppo_histories_improve_on_darkroom(tmp_path):
     # Paper protocol, 16 copies per learner, 25 episodes: late episodes must beat early ones clearly.
     ds = collect(
-        CollectConfig("darkroom", tasks="30,50", histories=16, steps=500, workers=2, collector="sb3"),
+        CollectConfig(
+            "darkroom", tasks="30,50", histories=16, steps=500, workers=2, collector="sb3"
+        ),
         tmp_path / "d",
         progress=False,
     )

@@ -128,7 +128,9 @@ def test_other_arguments_and_the_flags_reach_the_trainer(small_darkroom, tmp_pat
     assert prov["train"]["training_args"] == {"adam_epsilon": 1e-6, "lr_scheduler_type": "linear"}
     assert trainer.lhf_identity["train"]["training_args"] == prov["train"]["training_args"]
     refused = TrainConfig(**{**cfg.to_dict(), "training_args": {"eval_strategy": "steps"}})
-    with pytest.raises(UserError, match="Trainer refused --training-arg eval_strategy=.steps.: You have set"):
+    with pytest.raises(
+        UserError, match="Trainer refused --training-arg eval_strategy=.steps.: You have set"
+    ):
         build_trainer(refused)
 
 
@@ -163,6 +165,8 @@ def test_a_run_reports_and_records_its_arguments(small_darkroom, tmp_path, monke
     assert args["adam_epsilon"] == 1e-6 and args["report_to"] == ["tensorboard"]
     assert "TrainingArguments also set: `adam_epsilon=1e-06`" in (out / "README.md").read_text()
     (out / "config.json").unlink()  # unfinished: resumable from checkpoint-2
-    again = TrainConfig(**{**cfg.to_dict(), "resume": True, "training_args": {"adam_epsilon": 1e-5}})
+    again = TrainConfig(
+        **{**cfg.to_dict(), "resume": True, "training_args": {"adam_epsilon": 1e-5}}
+    )
     with pytest.raises(UserError, match=r"training_args: \{'adam_epsilon': 1e-06\} -> "):
         train(again)
