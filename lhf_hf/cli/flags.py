@@ -23,6 +23,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from lhf_hf.configs.commands import OutputOptions
+
 REQUIRED = object()  # a field without a default
 
 
@@ -217,8 +219,6 @@ def values(args: argparse.Namespace, names: Iterable[str]) -> dict[str, Any]:
 def add_progress(parser: argparse.ArgumentParser) -> list[str]:
     """``--no-progress`` for a long command: the one definition, ``OutputOptions.progress``
     (commands that take ``OutputOptions`` whole get it with the rest)."""
-    from lhf_hf.configs.commands import OutputOptions  # deferred: configs import numpy
-
     return add_params(parser, OutputOptions, only=("progress",))
 
 
