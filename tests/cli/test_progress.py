@@ -15,6 +15,7 @@ import lhf_hf.collection
 import lhf_hf.evaluation
 import lhf_hf.filtering.run
 import lhf_hf.histories.derive
+import lhf_hf.histories.upgrade
 import lhf_hf.hub
 import lhf_hf.reproduce
 import lhf_hf.training
@@ -53,6 +54,7 @@ CASES = {
     "push": (["p", "--repo-id", "org/name"], (lhf_hf.hub, "push"), PUSHED, False),
     "reproduce": (["darkroom-main"], (lhf_hf.reproduce, "reproduce"), None, True),
     "verify": (["p"], (lhf_hf.verify, "verify"), VERIFIED, False),
+    "upgrade": (["p"], (lhf_hf.histories.upgrade, "upgrade"), None, False),
 }  # fmt: skip
 
 
