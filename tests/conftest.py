@@ -11,7 +11,14 @@ os.environ.setdefault("HF_HOME", tempfile.mkdtemp(prefix="lhf-tests-hf-"))
 #: A small real collection shared by the histories/collection tests: 3 Darkroom tasks, 10 histories
 #: of 200 transitions, noisy protocol (7 PPO + 3 random histories per task).
 SMALL = dict(
-    env_id="darkroom", tasks="3,40,62", histories=10, steps=200, protocol="noisy", seed=0, workers=1
+    env_id="darkroom",
+    tasks="3,40,62",
+    histories=10,
+    steps=200,
+    protocol="noisy",
+    seed=0,
+    workers=1,
+    collector="sb3",
 )
 
 
@@ -30,7 +37,7 @@ def small_darkroom_batched(tmp_path_factory):
     from lhf_hf.configs import CollectConfig
 
     root = tmp_path_factory.mktemp("small") / "darkroom-batched"
-    return collect(CollectConfig(**SMALL, collector="batched"), root, progress=False)
+    return collect(CollectConfig(**{**SMALL, "collector": "batched"}), root, progress=False)
 
 
 @pytest.fixture(params=["sb3", "batched"])

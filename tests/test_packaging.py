@@ -1,5 +1,5 @@
 """The wheel carries everything a non-editable install needs: card templates, experiment specs,
-the kernel source; and the experiment specs and templates are found from the package itself."""
+the kernel source, the accelerate launch config; and they are found from the package itself."""
 
 from __future__ import annotations
 
@@ -30,8 +30,9 @@ def test_wheel_contains_the_package_data(tmp_path):
         *package.glob("reproduce/experiments/*.yaml"),
         package / "reproduce" / "rates.json",
         *package.glob("collection/kernels/*.cpp"),
+        *package.glob("launch/*.yaml"),
     ]
-    assert len(data) >= 3 + 8 + 1 + 1 and all(p.exists() for p in data)
+    assert len(data) >= 3 + 8 + 1 + 1 + 1 and all(p.exists() for p in data)
     missing = [
         str(p.relative_to(REPO)) for p in data if p.relative_to(REPO).as_posix() not in names
     ]
@@ -43,6 +44,7 @@ def test_wheel_contains_the_package_data(tmp_path):
 
 def test_specs_and_templates_are_found_inside_the_package():
     from lhf_hf.reproduce.experiment import EXPERIMENTS_DIR, experiment_names
+    from lhf_hf.utils.launcher import accelerate_config
     from lhf_hf.utils.templates import template_path
 
     package = Path(__import__("lhf_hf").__file__).parent
@@ -50,6 +52,7 @@ def test_specs_and_templates_are_found_inside_the_package():
     assert {"darkroom-main", "darkroom-noisy", "metaworld-ml1"} <= set(experiment_names())
     for name in ("histories_card.md", "selection_card.md", "model_card.md"):
         assert template_path(name).parent.parent == package
+    assert accelerate_config().parent.parent == package
 
 
 @pytest.mark.parametrize("newest", ["0", "1"])

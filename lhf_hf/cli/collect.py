@@ -5,13 +5,17 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import sys
 
 from lhf_hf.configs import CollectConfig
 from lhf_hf.configs.commands import OutputOptions
 
 from .flags import add_params, values
 
-HELP = "collect learning histories (SB3 PPO/SAC) into a LeRobot-style dataset"
+HELP = (
+    "collect learning histories into a LeRobot-style dataset (PPO by the batched collector on the "
+    "gridworlds, SB3 PPO/SAC elsewhere; --collector sb3: the SB3 reference)"
+)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -28,9 +32,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from lhf_hf.collection import collect  # deferred: heavy (torch, datasets, SB3)
+    from lhf_hf.collection.driver import started_collector  # deferred: as above
 
-    config = CollectConfig(**values(args, args.config))
+    given = values(args, args.config)
     output = OutputOptions(**values(args, args.output))
+    default = given.get("collector", "auto") == "auto"
+    started = started_collector(output.out) if default and output.resume else None
+    config = CollectConfig(**given, **({"collector": started} if started else {}))
+    if default:  # said: the default depends on the env (and, resuming, on the folder)
+        why = (f"the one {output.out} was started with" if started else
+               f"the default for {config.algo.upper()} on {config.env_id}")  # fmt: skip
+        if config.collector == "batched":
+            why += "; --collector sb3 runs the SB3 reference"
+        print(f"collect {config.env_id}: the {config.collector} collector ({why})", file=sys.stderr)
     # A one-shot process: the objects alive now (torch, numpy, datasets, ...) live until exit, so
     # the cyclic GC need not rescan them on every full collection (~0.7 s per Key-to-Door chunk of
     # the batched collector's per-step allocations).

@@ -7,7 +7,7 @@ import argparse
 from lhf_hf.configs.commands import CompareOptions
 
 from .evaluate import COMPARE_HELP
-from .flags import add_params, values
+from .flags import add_params, add_progress, values
 
 # what compare refuses (evaluation/compare.py checks it; docs/evaluation.md): said in --help so
 # that a refused comparison is no surprise
@@ -25,6 +25,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "compare", help=COMPARE_HELP, description=COMPARE_HELP, epilog=REFUSED
     )
     fields = add_params(p, CompareOptions)
+    add_progress(p)  # the libraries' bars (lhf_hf.cli.main)
     p.set_defaults(func=run, fields=fields)
     return p
 

@@ -1,5 +1,6 @@
 """The program's entry (the ``lhf`` console script and ``python -m lhf_hf``): Ctrl-C or SIGTERM
-while the commands are still being imported ends the program quietly, with 130 / 143.
+while the commands are still being imported ends the program quietly, with 130 / 143; a closed
+pipe on stdout, whichever command (or ``--help``) wrote, ends it quietly with 141.
 
 ``lhf_hf.cli.main`` imports every command's config (numpy, gymnasium: ~0.4 s) before ``main``
 installs its interrupt handling; an interrupt in that window raised KeyboardInterrupt inside an
@@ -25,10 +26,22 @@ def run() -> None:
     from lhf_hf.cli.main import main  # deferred: after the handlers (the point of this module)
 
     try:
-        code = main()  # installs the command's own handling first, ignores interrupts at its end
+        try:
+            code = main()  # installs the command's own handling, ignores interrupts at its end
+        except SystemExit as exc:  # argparse: --help, --version, a usage error
+            if not (exc.code is None or isinstance(exc.code, int)):
+                raise
+            code = exc.code or 0
+        # What is still buffered (argparse's help and version are written, not flushed): flushed
+        # here, where a closed pipe can be caught, not by the interpreter's exit ("Exception
+        # ignored ... BrokenPipeError", status 120).
+        sys.stdout.flush()
     except BrokenPipeError:
-        # the reader of our output went away (`lhf envs --json | head`): end quietly, as a
-        # shell tool killed by SIGPIPE would (Python's own advice: no more writes to stdout)
+        # The reader of our output went away (`lhf envs --json | head -1`, `lhf --help | head`):
+        # end quietly with the status of a shell tool killed by SIGPIPE.  As the Python docs'
+        # "Note on SIGPIPE" advises: stdout goes to devnull, so that the exit's flush cannot
+        # fail again, and SIGPIPE keeps Python's disposition (SIG_DFL would also kill the
+        # program on a closed socket).
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         code = 128 + signal.SIGPIPE
     if code in (128 + signal.SIGINT, 128 + signal.SIGTERM):

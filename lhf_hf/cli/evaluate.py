@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 
 from lhf_hf.configs import EvalConfig
-from lhf_hf.configs.commands import OutputOptions
 
-from .flags import add_params, quiet_libraries, values
+from .flags import add_params, add_progress, progress, values
 
 HELP = "evaluate a checkpoint in context on unseen tasks (curve, results JSON, model card)"
 COMPARE_HELP = "compare baseline and LHF evaluation runs: relative enhancement E, table, figure"
@@ -16,8 +15,8 @@ COMPARE_HELP = "compare baseline and LHF evaluation runs: relative enhancement E
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("evaluate", help=HELP, description=HELP)
     fields = add_params(p, EvalConfig, flags={"env_id": "--env"})
-    output = add_params(p, OutputOptions, only=("progress",))
-    p.set_defaults(func=run, fields=fields, output=output)
+    add_progress(p)
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
@@ -26,10 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.evaluation.evaluate import plan_label  # deferred: with it
 
     cfg = EvalConfig(**values(args, args.fields))
-    progress = values(args, args.output).get("progress", True)
-    if not progress:
-        quiet_libraries()
-    r = evaluate(cfg, progress=progress)
+    r = evaluate(cfg, progress=progress(args))
     print(
         f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{plan_label(cfg).replace(' + ', ', ')}): "
         f"mean return {r['mean_return']:.3f}, first {r['first_return']:.3f}, final {r['final_return']:.3f}"

@@ -23,6 +23,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from lhf_hf.configs.commands import OutputOptions
+
 REQUIRED = object()  # a field without a default
 
 
@@ -31,7 +33,9 @@ class Param:
     """One field as a command-line argument.
 
     name: the field's name (the namespace attribute, and the keyword it is passed back as).
-    kind: ``str``, ``int``, ``float``, ``bool`` or ``list`` (one or more strings).
+    kind: ``str``, ``int``, ``float``, ``bool``, ``list`` (one or more strings) or ``dict``
+        (``KEY=VALUE``, the flag repeated once per key; the values stay text for the field's
+        owner to read).
     default: the field's default, or ``REQUIRED``.
     choices: the allowed values (a ``Literal`` type), or None.
     help: the field's docstring entry.
@@ -74,6 +78,8 @@ def _kind(hint: Any, where: str) -> tuple[type, tuple | None]:
             return str, None
     if origin is list and typing.get_args(hint) in ((str,), ()):
         return list, None
+    if (origin or hint) is dict and typing.get_args(hint)[:1] in ((str,), ()):
+        return dict, None
     if hint in (str, int, float, bool):
         return hint, None
     raise TypeError(f"{where}: no command-line form for type {hint!r}; skip the field")
@@ -128,7 +134,7 @@ def _help(p: Param) -> str:
     text = p.help.replace("``", "`").replace("%", "%%").replace("None = ", "unset: ")
     if p.kind is bool and p.default is True:  # the --no-NAME switch
         text = "do not " + text[0].lower() + text[1:]
-    shown = p.default is not REQUIRED and p.default is not None and p.kind is not bool
+    shown = p.default not in (REQUIRED, None, {}) and p.kind is not bool
     if shown and "default" not in text:  # a text that speaks of its default says it better
         text = f"{text.rstrip('.')} (default: {p.default})"
     return text
@@ -170,7 +176,9 @@ def add_params(
             continue
         flag = flags.get(p.name, "--" + p.name.replace("_", "-"))
         kw.update(dest=p.name, default=argparse.SUPPRESS)
-        if p.kind is bool:
+        if p.kind is dict:
+            kw.update(action=_KeyValue, metavar="KEY=VALUE")
+        elif p.kind is bool:
             if p.default is True:  # a default-on switch is turned off with --no-NAME
                 flag = flags.get(p.name, "--no-" + p.name.replace("_", "-"))
                 kw["action"] = "store_false"
@@ -189,17 +197,31 @@ def add_params(
     return names
 
 
+class _KeyValue(argparse.Action):
+    """``--flag KEY=VALUE``, repeatable: one dict of every key given (a key given twice: the
+    last value)."""
+
+    def __call__(self, parser, namespace, text, option_string=None):
+        key, sep, value = text.partition("=")
+        if not sep or not key.strip():
+            raise argparse.ArgumentError(self, f"expected KEY=VALUE, got {text!r}")
+        given = dict(getattr(namespace, self.dest, None) or {})
+        given[key.strip()] = value
+        setattr(namespace, self.dest, given)
+
+
 def values(args: argparse.Namespace, names: Iterable[str]) -> dict[str, Any]:
     """The fields of ``names`` given on the command line (unset ones are absent: their defaults
     are the dataclass's or function's own)."""
     return {n: getattr(args, n) for n in names if hasattr(args, n)}
 
 
-def quiet_libraries() -> None:
-    """``--no-progress``: also the bars transformers and datasets draw themselves (loading and
-    writing weights, building tables)."""
-    import datasets  # deferred: heavy, and only when asked
-    from transformers.utils import logging as hf_logging  # deferred: as above
+def add_progress(parser: argparse.ArgumentParser) -> list[str]:
+    """``--no-progress`` for a long command: the one definition, ``OutputOptions.progress``
+    (commands that take ``OutputOptions`` whole get it with the rest)."""
+    return add_params(parser, OutputOptions, only=("progress",))
 
-    hf_logging.disable_progress_bar()
-    datasets.disable_progress_bars()
+
+def progress(args: argparse.Namespace) -> bool:
+    """Whether the command line asked for progress bars (``--no-progress``: False)."""
+    return getattr(args, "progress", True)

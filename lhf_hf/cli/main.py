@@ -16,6 +16,8 @@ from contextlib import nullcontext
 
 from lhf_hf import __version__
 from lhf_hf.errors import UserError
+from lhf_hf.utils.launcher import launch_mismatch
+from lhf_hf.utils.progress import library_bars
 from lhf_hf.utils.signals import (
     Terminated,
     ignore_interrupts,
@@ -25,6 +27,7 @@ from lhf_hf.utils.signals import (
 )
 
 from . import (
+    accelerate_config,
     collect,
     compare,
     derive,
@@ -37,6 +40,7 @@ from . import (
     upgrade,
     verify,
 )
+from .flags import progress
 
 #: Subcommands, in the order ``lhf --help`` lists them.  Each module has ``add_parser``.
 COMMANDS = [
@@ -51,6 +55,7 @@ COMMANDS = [
     reproduce,
     verify,
     upgrade,
+    accelerate_config,
 ]
 
 
@@ -77,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    mismatch = launch_mismatch()
+    if mismatch:  # said first: the run that follows is not the one asked for
+        print(f"lhf {args.command}: warning: {mismatch}", file=sys.stderr)
     program = argv is None
     if program:
         interrupts_raise_once()
@@ -101,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace, program: bool) -> int:
     """The command, with the outcomes every command shares turned into messages and exit codes."""
     try:
-        with nullcontext() if program else sigterm_raises():  # kill / timeout: as Ctrl-C
+        # kill / timeout: as Ctrl-C; --no-progress: the libraries' bars too, for every command
+        with nullcontext() if program else sigterm_raises(), library_bars(progress(args)):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         if program:  # also after an interrupt some library code raised itself

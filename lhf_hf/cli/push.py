@@ -7,7 +7,7 @@ import json
 
 from lhf_hf.configs.commands import PushOptions
 
-from .flags import add_params, values
+from .flags import add_params, add_progress, values
 
 HELP = "push a history dataset, LHF selection or model checkpoint folder to a Hugging Face Hub repo"
 
@@ -21,6 +21,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "v3.0 tag.  The endpoint and token come from HF_ENDPOINT / HF_TOKEN (or `hf auth login`).",
     )
     fields = add_params(p, PushOptions, positional=("path",))
+    add_progress(p)  # huggingface_hub's upload bars (lhf_hf.cli.main)
     p.set_defaults(func=run, fields=fields)
     return p
 

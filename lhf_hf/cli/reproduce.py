@@ -6,7 +6,7 @@ import argparse
 
 from lhf_hf.configs.commands import ReproduceOptions
 
-from .flags import add_params, values
+from .flags import add_params, add_progress, progress, values
 
 HELP = "run a paper experiment end to end (collect, filter, train, evaluate, compare) to report.md"
 
@@ -18,6 +18,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=HELP + ".  Every stage is cached by its config's hash: a rerun resumes.",
     )
     fields = add_params(p, ReproduceOptions, positional=("experiment",))
+    add_progress(p)  # every stage's bars (in this process or a --jobs child)
     p.set_defaults(func=run, fields=fields)
     return p
 
@@ -60,5 +61,6 @@ def run(args: argparse.Namespace) -> int:
         jobs=o.jobs,
         objectives=o.objectives,
         import_from=o.import_stages,
+        progress=progress(args),
     )
     return 0

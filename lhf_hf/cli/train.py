@@ -6,9 +6,8 @@ import argparse
 import os
 
 from lhf_hf.configs import TrainConfig
-from lhf_hf.configs.commands import OutputOptions
 
-from .flags import add_params, quiet_libraries, values
+from .flags import add_params, add_progress, progress, values
 
 HELP = "pretrain an ICRL model (AD, DPT or DICP) with transformers.Trainer"
 
@@ -19,16 +18,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help=HELP,
         description=HELP
         + (
-            ". Runs as is or under `accelerate launch --config_file training/accelerate/cpu_2proc.yaml "
-            "-m lhf_hf train ...`."
+            '. Runs as is or under `accelerate launch --config_file "$(lhf accelerate-config)" '
+            "-m lhf_hf train ...` (CPU data parallelism, 2 processes)."
         ),
     )
-    fields = add_params(p, TrainConfig, skip=("resume", "overwrite"))
+    fields = add_params(
+        p, TrainConfig, skip=("resume", "overwrite"), flags={"training_args": "--training-arg"}
+    )
     fields += add_params(
         p, TrainConfig, only=("resume", "overwrite"), group=p.add_mutually_exclusive_group()
     )
-    output = add_params(p, OutputOptions, only=("progress",))
-    p.set_defaults(func=run, fields=fields, output=output)
+    add_progress(p)
+    p.set_defaults(func=run, fields=fields)
     return p
 
 
@@ -36,10 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from lhf_hf.training import train  # deferred: heavy (torch, transformers)
 
     cfg = TrainConfig(**values(args, args.fields))
-    progress = values(args, args.output).get("progress", True)
-    if not progress:
-        quiet_libraries()
-    out = train(cfg, progress=progress)
+    out = train(cfg, progress=progress(args))
     if os.environ.get("RANK", "0") == "0":  # one line under accelerate launch, not one per process
         print(f"model: {out}  (card: {out}/README.md, config: {out}/train_config.json)")
         if cfg.push_to_hub:

@@ -6,7 +6,7 @@ import argparse
 
 from lhf_hf.configs.commands import UpgradeOptions
 
-from .flags import add_params, values
+from .flags import add_params, add_progress, values
 
 HELP = "rewrite a dataset of lhf's earlier layout (before LeRobot's reader could load it) in place"
 
@@ -14,6 +14,7 @@ HELP = "rewrite a dataset of lhf's earlier layout (before LeRobot's reader could
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("upgrade", help=HELP, description=HELP)
     fields = add_params(p, UpgradeOptions, positional=("path",))
+    add_progress(p)  # the libraries' bars (lhf_hf.cli.main)
     p.set_defaults(func=run, fields=fields)
     return p
 

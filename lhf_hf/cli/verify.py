@@ -6,7 +6,7 @@ import argparse
 
 from lhf_hf.configs.commands import VerifyOptions
 
-from .flags import add_params, values
+from .flags import add_params, add_progress, values
 
 HELP = "check a dataset, selection, model or other lhf output folder: files unchanged, contents consistent"
 
@@ -14,6 +14,7 @@ HELP = "check a dataset, selection, model or other lhf output folder: files unch
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("verify", help=HELP, description=HELP)
     fields = add_params(p, VerifyOptions, positional=("path",))
+    add_progress(p)  # the libraries' bars (lhf_hf.cli.main)
     p.set_defaults(func=run, fields=fields)
     return p
 

@@ -25,7 +25,7 @@ import torch
 from tqdm.auto import tqdm
 
 from lhf_hf import constants as C
-from lhf_hf.configs.collect import CollectConfig
+from lhf_hf.configs.collect import COLLECTORS, CollectConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.histories.reader import HistoryDataset, load_histories
 from lhf_hf.histories.writer import (
@@ -35,6 +35,7 @@ from lhf_hf.histories.writer import (
     task_done,
     write_task,
 )
+from lhf_hf.utils.io import read_json
 from lhf_hf.utils.launcher import end_ranks, wait_for_ranks
 from lhf_hf.utils.signals import interrupts_ignored
 from lhf_hf.utils.versions import library_versions
@@ -138,7 +139,12 @@ def _run_sb3(
     todo = [p for p in mine if not task_done(out, p, config.frames_per_task)]
     config_dict = config.to_dict()
     bar = _Progress(
-        config, len(mine), len(mine) - len(todo), ranks, progress, f"{config.workers} worker(s)"
+        config,
+        len(mine),
+        len(mine) - len(todo),
+        ranks,
+        progress,
+        f"sb3, {config.workers} worker(s)",
     )
     try:
         if config.workers == 1 or len(todo) <= 1:
@@ -287,6 +293,17 @@ def torch_threads() -> int:
 
 #: Collectors by name (``CollectConfig.collector``): each runs this rank's share of the tasks.
 RUNNERS = {"sb3": _run_sb3, "batched": _run_batched}
+
+
+def started_collector(out: str | Path) -> str | None:
+    """The collector an unfinished or finished collection in ``out`` was started with (None: no
+    collection there).  ``--collector`` unset and ``--resume``: that one goes on, whatever the
+    default is now."""
+    try:
+        found = read_json(Path(out) / C.CONFIG_PATH).get("collector")
+    except (OSError, ValueError):
+        return None
+    return found if found in COLLECTORS else None
 
 
 def collect(

@@ -17,6 +17,8 @@ from .types import check_types
 Protocol = Literal["paper", "independent", "noisy"]
 Algo = Literal["ppo", "sac"]
 Collector = Literal["sb3", "batched"]
+#: what ``--collector`` takes: a collector, or ``auto`` (resolved per env and algorithm)
+CollectorChoice = Literal["auto", "sb3", "batched"]
 PpoBackend = Literal["auto", "kernel", "torch"]
 PROTOCOLS: tuple[str, ...] = get_args(Protocol)
 ALGOS: tuple[str, ...] = get_args(Algo)
@@ -99,6 +101,12 @@ def ppo_preset(env_id: str) -> PPOSettings:
     return PPOSettings(n_steps=n_steps, batch_size=batch_size, n_epochs=n_epochs)
 
 
+def default_collector(env_id: str, algo: str) -> str:
+    """``collector="auto"``: the batched collector where it applies (PPO on an env with a batched
+    core), else SB3 (the reference, one flag away everywhere)."""
+    return "batched" if get_spec(env_id).batched is not None and algo == "ppo" else "sb3"
+
+
 def parse_tasks(
     tasks: str | list[int] | tuple[int, ...], env_id: str, split_seed: int
 ) -> list[int]:
@@ -145,8 +153,11 @@ class CollectConfig:
         copy), ``independent`` (one independently seeded learner per history), or ``noisy`` (``paper``
         with ``noisy_fraction`` of the histories made by a uniform random policy instead).
     algo: source RL algorithm, ``ppo`` (any env) or ``sac`` (continuous actions only).
-    collector: ``sb3`` (Stable-Baselines3; the reference) or ``batched`` (every learner of a chunk of
-        tasks trained at once with stacked parameters; gridworlds, PPO).
+    collector: ``auto`` (``batched`` where it applies: PPO on an env with a batched core, the
+        gridworlds; else ``sb3``, e.g. SAC or Meta-World), ``sb3`` (Stable-Baselines3, the
+        reference, any env) or ``batched`` (every learner of a chunk of tasks trained at once with
+        stacked parameters, the same PPO).  Resolved when the config is made: the dataset records
+        the collector that ran, never ``auto``.
     seed: root seed; task t's learners are seeded from ``SeedSequence([seed, t])``.
     split_seed: seed of the train/test split (and of the Meta-World goals).
     workers: worker processes collecting tasks in parallel (default: all cores; 1 = in this process).
@@ -174,7 +185,7 @@ class CollectConfig:
     steps: int = 1000
     protocol: Protocol = "paper"
     algo: Algo = "ppo"
-    collector: Collector = "sb3"
+    collector: CollectorChoice = "auto"
     seed: int = 0
     split_seed: int = 0
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
@@ -194,9 +205,12 @@ class CollectConfig:
             )
         if self.algo not in ALGOS:
             raise UserError(f"CollectConfig.algo must be one of {ALGOS}, got {self.algo!r}")
+        if self.collector == "auto":
+            self.collector = default_collector(self.env_id, self.algo)
         if self.collector not in COLLECTORS:
             raise UserError(
-                f"CollectConfig.collector must be one of {COLLECTORS}, got {self.collector!r}"
+                f"CollectConfig.collector must be one of {('auto', *COLLECTORS)}, got "
+                f"{self.collector!r}"
             )
         if self.algo == "sac" and spec.is_discrete:
             raise UserError(

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, field
+from typing import Any
 
 from lhf_hf.constants import Objective
 from lhf_hf.errors import UserError
@@ -19,6 +21,41 @@ from .model import (
     check_model_fields,
 )
 from .types import check_types
+
+#: ``TrainingArguments`` fields that lhf sets from its own flags: ``training_args`` refuses them
+#: and names the flag (one place per setting).
+TRAINING_ARGS_FROM_FLAGS = {
+    "output_dir": "--out",
+    "max_steps": "--max-steps",
+    "num_train_epochs": "--max-steps",
+    "per_device_train_batch_size": "--batch-size (the global batch, split across processes)",
+    "learning_rate": "--lr",
+    "warmup_steps": "--warmup-steps",
+    "weight_decay": "--weight-decay",
+    "adam_beta1": "--beta1",
+    "adam_beta2": "--beta2",
+    "max_grad_norm": "--max-grad-norm",
+    "logging_steps": "--logging-steps",
+    "save_steps": "--save-steps",
+    "seed": "--seed",
+    "report_to": "--report-to",
+    "disable_tqdm": "--no-progress",
+    "push_to_hub": "--push-to-hub",
+    "hub_model_id": "--push-to-hub",
+    "hub_private_repo": "--hub-private",
+    "resume_from_checkpoint": "--resume",
+}
+#: ``TrainingArguments`` fields that lhf fixes, and why: another value would break what the
+#: flags promise.
+TRAINING_ARGS_FIXED = {
+    "save_total_limit": "lhf keeps the newest 2 checkpoints itself (and any holding files "
+    "training did not write)",
+    "remove_unused_columns": "the window collators read every column",
+    "dataloader_drop_last": "the sampler draws whole batches, so no step is short",
+    "gradient_accumulation_steps": "--batch-size is the windows of one optimiser step",
+    "auto_find_batch_size": "--batch-size is the windows of one optimiser step",
+    "hub_strategy": "lhf pushes each saved checkpoint itself (--push-to-hub)",
+}
 
 
 @dataclass(frozen=True)
@@ -67,6 +104,12 @@ class TrainConfig:
     push_to_hub: a model repo id ``ORG/NAME``: Trainer pushes every saved checkpoint's weights
         there during training and the final folder (weights, config, train config, card) at the end.
     hub_private: create that repo private.
+    report_to: where Trainer reports its logs, as ``TrainingArguments.report_to``: ``none``,
+        ``all`` (every installed integration) or integration names, comma-separated
+        (``tensorboard``, ``trackio``, ``wandb``, ``mlflow``, ...); a named one must be installed.
+    training_args: other ``transformers.TrainingArguments`` fields, ``KEY=VALUE`` (repeatable;
+        e.g. ``lr_scheduler_type=linear``, ``adam_epsilon=1e-6``), each value read as its field's
+        type; the fields lhf sets from its own flags are refused with the flag to use.
     """
 
     dataset: str
@@ -96,6 +139,8 @@ class TrainConfig:
     overwrite: bool = False
     push_to_hub: str | None = None
     hub_private: bool = False
+    report_to: str | list[str] = "none"
+    training_args: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -139,6 +184,19 @@ class TrainConfig:
                 raise bad(name, "must be in [0, 1)")
         if self.push_to_hub is not None:
             validate_repo_id(self.push_to_hub)
+        reporters = self.reporters
+        if not reporters or any(not re.fullmatch(r"[a-z][a-z0-9_]*", r) for r in reporters):
+            raise bad("report_to", "must be 'none', 'all' or integration names, comma-separated")
+        if len(reporters) > 1 and {"none", "all"} & set(reporters):
+            raise bad("report_to", "names 'none' or 'all' alone")
+        for key in self.training_args:
+            check_training_arg(key)
+
+    @property
+    def reporters(self) -> list[str]:
+        """``report_to`` as a list of names (``"tensorboard,wandb"`` -> both)."""
+        given = [self.report_to] if isinstance(self.report_to, str) else self.report_to
+        return [n.strip() for item in given for n in item.split(",") if n.strip()]
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -146,3 +204,15 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:
         return cls(**d)
+
+
+def check_training_arg(key: Any) -> None:
+    """Refuse a ``training_args`` key that lhf sets from a flag or fixes (the rest are checked
+    against ``TrainingArguments`` itself when training starts, ``training.arguments``)."""
+    where = f"TrainConfig.training_args: {key!r}"
+    if not isinstance(key, str) or not key.isidentifier():
+        raise UserError(f"{where} is not a TrainingArguments field name")
+    if key in TRAINING_ARGS_FROM_FLAGS:
+        raise UserError(f"{where} is set by lhf's own flag: use {TRAINING_ARGS_FROM_FLAGS[key]}")
+    if key in TRAINING_ARGS_FIXED:
+        raise UserError(f"{where} is fixed by lhf: {TRAINING_ARGS_FIXED[key]}")

@@ -157,9 +157,10 @@ def _tail(path: Path, lines: int = 15) -> str:
 
 
 def worker_command(
-    experiment: str, preset: str, runs: int, work: Path
+    experiment: str, preset: str, runs: int, work: Path, progress: bool = True
 ) -> Callable[[Stage], list[str]]:
     """The command that runs one stage of this experiment in a child process."""
     base = [sys.executable, "-m", "lhf_hf.reproduce.worker", str(experiment), preset]
     base += ["--runs", str(runs), "--work", str(Path(work).resolve())]
+    base += [] if progress else ["--no-progress"]
     return lambda stage: [*base, "--stage", stage.hash]

@@ -46,15 +46,17 @@ def _arms(exp: Experiment) -> list[str]:
     return [arm for arm, _ in exp.filter_arms(0)]
 
 
-#: TrainConfig fields that say where the data and the model are, not what is trained: the stage's
-#: hash covers its inputs' hashes instead.
-TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_hub", "hub_private")
+#: TrainConfig fields that say where the data, the model and the logs are, not what is trained: the
+#: stage's hash covers its inputs' hashes instead.
+TRAIN_PLACES = ("dataset", "selection", "out", "resume", "overwrite", "push_to_hub", "hub_private",
+                "report_to")  # fmt: skip
 
 
-def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
+def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[list[Stage], dict]:
     """Every stage of ``exp`` in run order (their folders under ``work``), and
     ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``; also
     ``evals[("selection", env, arm)] -> [filter stage per run]`` (what each selection kept).
+    ``progress``: the stages' progress bars (not part of any hash).
 
     A stage's hash covers its whole config (every field, defaults included: a changed default
     re-runs what it changes) and the hashes of the stages it reads.
@@ -72,7 +74,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
 
             def do_collect(out: Path, cfg=collect_cfg) -> None:
                 data = out / "data"
-                collect(CollectConfig.from_dict(cfg.to_dict()), data, resume=data.exists())
+                collect(CollectConfig.from_dict(cfg.to_dict()), data, resume=data.exists(),
+                        progress=progress)  # fmt: skip
 
             label = f"{tag}: {collect_cfg.histories} histories x {collect_cfg.steps}"
             col = Stage(
@@ -84,7 +87,9 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
             if exp.half:
 
                 def do_half(out: Path, src=col) -> None:
-                    derive_half(src.path(work) / "data", out / "data", overwrite=True)
+                    derive_half(
+                        src.path(work) / "data", out / "data", overwrite=True, progress=progress
+                    )
 
                 data_stage = Stage("derive", f"{tag}: first half", {"src": col.hash}, do_half,
                                    (col,), Cost("derive", transitions))  # fmt: skip
@@ -94,7 +99,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
             for arm, filter_cfg in exp.filter_arms(run):
 
                 def do_filter(out: Path, cfg=filter_cfg, src=data_stage) -> None:
-                    run_filter(src.path(work) / "data", out / "selection", cfg, overwrite=True)
+                    run_filter(src.path(work) / "data", out / "selection", cfg, overwrite=True,
+                               progress=progress)  # fmt: skip
 
                 fc = {"src": data_stage.hash, **filter_cfg.to_dict()}
                 sel = Stage("filter", f"{tag}: {arm}", fc, do_filter, (data_stage,),
@@ -106,6 +112,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                 for arm, sel in [("baseline", None), *arms]:
                     train_cfg = exp.train_config(obj, run, dataset="", selection=None, out="")
                     tc = {k: v for k, v in train_cfg.to_dict().items() if k not in TRAIN_PLACES}
+                    if not tc["training_args"]:  # none: the hash of a stage from before the field
+                        del tc["training_args"]
                     tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
@@ -120,7 +128,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                         selection = str(sel.path(work) / "selection") if sel else None
                         data = str(src.path(work) / "data")
                         train(exp.train_config(obj, run, dataset=data, selection=selection,
-                                               out=str(model), resume=resume))  # fmt: skip
+                                               out=str(model), resume=resume),
+                              progress=progress)  # fmt: skip
 
                     reads = (data_stage,) if sel is None else (data_stage, sel)
                     tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train, reads,
@@ -134,7 +143,8 @@ def plan_stages(exp: Experiment, work: Path) -> tuple[list[Stage], dict]:
                         def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:
                             model = str(tr.path(work) / "model")
                             evaluate(
-                                exp.eval_config(run, model=model, out=str(out / "eval"), plan=plan)
+                                exp.eval_config(run, model=model, out=str(out / "eval"), plan=plan),
+                                progress=progress,
                             )
 
                         what = f"{obj.upper()}{' + plan' if plan else ''} {arm}"
@@ -155,15 +165,16 @@ def reproduce(
     jobs: int = 1,
     objectives: list[str] | None = None,
     import_from: list[str | Path] | None = None,
+    progress: bool = True,
 ) -> Path:
     """Run experiment ``name`` at ``preset``; returns the path of ``report.md``.
 
     jobs: stages at once (``parallel.py``).  objectives: only these backbones (the report is named
     after them, a later full run reuses their stages).  import_from: exports (``portable.py``)
-    copied into ``work`` first; what they hold is not run again.
+    copied into ``work`` first; what they hold is not run again.  progress: the stages' bars.
     """
     exp, work, stages, evals = _prepare(
-        name, preset, runs, work, jobs, objectives, import_from, echo
+        name, preset, runs, work, jobs, objectives, import_from, echo, progress
     )
     out = Path(report_out(exp, out))
     echo(
@@ -176,16 +187,16 @@ def reproduce(
     with output_folder(out, "report", overwrite=True, inputs=[work], own_nested=["comparison"]):
         # the children plan from a copy: an edit of the spec meanwhile cannot reach them
         spec = snapshot_spec(name, preset, runs, exp, work, objectives) if jobs > 1 else None
-        command = worker_command(spec, preset, exp.runs, work) if spec else None
+        command = worker_command(spec, preset, exp.runs, work, progress) if spec else None
         return _run(exp, stages, evals, work, out, echo, jobs, command)
 
 
-def _prepare(name, preset, runs, work, jobs, objectives, import_from, echo):
+def _prepare(name, preset, runs, work, jobs, objectives, import_from, echo, progress=True):
     """The checked call's experiment, work folder and plan, the exports imported first."""
     check_jobs(jobs)
     work = check_work(work)
     exp = load_experiment(name, preset, runs, objectives)
-    stages, evals = plan_stages(exp, work)
+    stages, evals = plan_stages(exp, work, progress)
     _import(import_from, work, stages, echo, exp)
     return exp, work, stages, evals
 

@@ -1,6 +1,6 @@
 """One stage of a reproduction in its own process (``lhf reproduce --jobs J``, ``parallel.py``).
 
-    python -m lhf_hf.reproduce.worker EXPERIMENT PRESET --runs R --work WORK --stage HASH
+    python -m lhf_hf.reproduce.worker EXPERIMENT PRESET --runs R --work WORK --stage HASH [--no-progress]
 
 Plans the experiment exactly as the parent did (the plan is a function of the spec, preset, runs
 and work folder) and runs the stage whose hash is HASH with the same ``StageRunner``, so the stage
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from lhf_hf.utils.progress import library_bars
 from lhf_hf.utils.signals import interrupts_raise_once, sigterm_raises
 
 from .experiment import load_experiment
@@ -33,11 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs", type=int, required=True)
     p.add_argument("--work", required=True)
     p.add_argument("--stage", required=True, help="the stage's full config hash")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
     a = p.parse_args(argv)
     if "OMP_NUM_THREADS" in os.environ:
         torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
     exp = load_experiment(a.experiment, a.preset, a.runs)
-    stages, _ = plan_stages(exp, Path(a.work))
+    stages, _ = plan_stages(exp, Path(a.work), a.progress)
     match = [s for s in stages if s.hash == a.stage]
     if not match:
         print(f"no stage {a.stage} in {exp.name} at preset {a.preset}", file=sys.stderr)
@@ -51,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     if program:
         interrupts_raise_once()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    with nullcontext() if program else sigterm_raises():
+    with nullcontext() if program else sigterm_raises(), library_bars(a.progress):
         StageRunner(a.work, echo=print).run(match[0])
     return 0
 

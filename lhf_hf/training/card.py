@@ -174,7 +174,8 @@ def render_model_card(
         beta2=train["beta2"],
         lr=train["lr"],
         weight_decay=train["weight_decay"],
-        max_grad_norm=train["max_grad_norm"],
+        # the template's optimiser row ends with the clip: the other Trainer arguments follow it
+        max_grad_norm=f"{train['max_grad_norm']}{_other_arguments(train)}",
         seed=train["seed"],
         final_loss=(
             f"{provenance['final_loss']:.4f}" if provenance.get("final_loss") is not None else "-"
@@ -193,6 +194,14 @@ def write_model_card(
     )
     write_text_atomic(text, Path(out) / "README.md")
     return Path(out) / "README.md"
+
+
+def _other_arguments(train: dict) -> str:
+    """'; TrainingArguments also set: k=v, ...' for ``--training-arg`` (none: '')."""
+    given = train.get("training_args") or {}
+    if not given:
+        return ""
+    return "; TrainingArguments also set: " + ", ".join(f"`{k}={v!r}`" for k, v in given.items())
 
 
 def _copies(e: dict) -> str:

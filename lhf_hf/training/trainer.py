@@ -1,7 +1,7 @@
 """``train(cfg)``: pretrain an AD / DPT / DICP model with ``transformers.Trainer`` (docs/design.md 6).
 
-Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the committed
-``training/accelerate/cpu_2proc.yaml``): the global batch is split across processes and the model's
+Runs as is (one process) or under ``accelerate launch`` (CPU data parallel with the shipped
+``lhf_hf/launch/cpu_2proc.yaml``, ``lhf accelerate-config``): the global batch is split across processes and the model's
 ``accepts_loss_kwargs = False`` keeps the logged loss on the same scale as one process.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 from huggingface_hub import HfApi
-from transformers import Trainer, TrainerCallback, TrainingArguments, set_seed
+from transformers import Trainer, TrainerCallback, set_seed
 from transformers.trainer_utils import PREFIX_CHECKPOINT_DIR
 
 from lhf_hf import constants as C
@@ -38,6 +38,7 @@ from lhf_hf.utils.launcher import end_ranks
 from lhf_hf.utils.outputs import output_folder
 from lhf_hf.utils.versions import library_versions
 
+from .arguments import refused, resolve, training_arguments
 from .card import MODEL_EVALS_FILE, plot_loss, write_model_card
 from .collators import make_collator
 from .model_config import (
@@ -59,14 +60,15 @@ IDENTITY_FILE = "lhf_train_identity.json"
 _IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", "lr",
                     "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
                     "dynamics_coef", "seed", "batch_size", "max_steps",
-                    "state_encoding", "attention", "sequence_length", "reward_weighting")  # fmt: skip
+                    "state_encoding", "attention", "sequence_length", "reward_weighting",
+                    "training_args")  # fmt: skip
 _MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "attention", "action_dim",
                  "discrete_actions",
                  "context_length", "label_positions", "hidden_size", "intermediate_size",
                  "num_hidden_layers", "num_attention_heads", "dynamics_coef",
                  "reward_weighting")  # fmt: skip
 #: What identities written before a field existed mean by its absence.
-_BEFORE_FIELD = {"reward_weighting": "data"}
+_BEFORE_FIELD = {"reward_weighting": "data", "training_args": {}}
 PICKLED_TRAINING_ARGS = "training_args.bin"
 LOG_FILE = "training_log.json"
 LOSS_PLOT = "training_loss.png"
@@ -191,6 +193,7 @@ class _Throughput(TrainerCallback):
 # ---------------------------------------------------------------------------- train
 def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bool = True):
     """Everything ``train`` runs, without running it: (trainer, provenance dict)."""
+    cfg = resolve(cfg)  # reporters and other Trainer arguments, before the data loads
     ds = load_histories(cfg.dataset)
     spec = get_spec(ds.env_id)
     has_optimal = C.OPTIMAL_ACTION in ds.info.get("features", {})
@@ -236,48 +239,25 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
         raise UserError(f"--batch-size {cfg.batch_size} is not divisible by the {world} processes")
     set_seed(cfg.seed)
     model = ICRLModel(config)
-    args = TrainingArguments(
-        output_dir=cfg.out,
-        max_steps=cfg.max_steps,
-        per_device_train_batch_size=cfg.batch_size // world,
-        learning_rate=cfg.lr,
-        lr_scheduler_type="cosine",
-        warmup_steps=cfg.warmup_steps,
-        weight_decay=cfg.weight_decay,
-        adam_beta1=cfg.beta1,
-        adam_beta2=cfg.beta2,
-        max_grad_norm=cfg.max_grad_norm,
-        logging_steps=cfg.logging_steps,
-        save_steps=cfg.save_steps,
-        save_total_limit=None,  # _RotateOwnCheckpoints keeps the newest 2, and what is not ours
-        seed=cfg.seed,
-        report_to="none",
-        remove_unused_columns=False,
-        dataloader_num_workers=0,
-        dataloader_drop_last=True,
-        disable_tqdm=not progress,  # with the sampler's whole batches, no step is short
-        ddp_find_unused_parameters=False,
-        use_cpu=not torch.cuda.is_available(),
-        # Trainer creates the repo; _PushCheckpoints pushes each saved checkpoint's weights as it
-        # goes; `train` pushes the final folder with the lhf card at the end.
-        push_to_hub=cfg.push_to_hub is not None,
-        hub_model_id=cfg.push_to_hub,
-        hub_strategy="end",
-        hub_private_repo=cfg.hub_private if cfg.push_to_hub else None,
-    )
+    args = training_arguments(cfg, world, progress)
     if args.world_size != world:
         raise RuntimeError(f"expected {world} processes, accelerate set up {args.world_size}")
-    trainer = WindowTrainer(
-        model=model,
-        args=args,
-        train_dataset=windows,
-        data_collator=collator,
-        callbacks=[
-            _Throughput(cfg.batch_size * length * config.tokens_per_transition),
-            _RotateOwnCheckpoints(),
-        ]
-        + ([_PushCheckpoints()] if cfg.push_to_hub else []),
-    )
+    try:
+        trainer = WindowTrainer(
+            model=model,
+            args=args,
+            train_dataset=windows,
+            data_collator=collator,
+            callbacks=[
+                _Throughput(cfg.batch_size * length * config.tokens_per_transition),
+                _RotateOwnCheckpoints(),
+            ]
+            + ([_PushCheckpoints()] if cfg.push_to_hub else []),
+        )
+    except ValueError as exc:  # Trainer's checks of its arguments
+        if not cfg.training_args:
+            raise
+        raise refused(cfg, "Trainer", exc) from None
     provenance = {
         "train": cfg.to_dict(),
         "dataset": {
@@ -404,6 +384,7 @@ def last_checkpoint(folder: str | Path) -> str | None:
 def train(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bool = True) -> Path:
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card.
     ``progress``: Trainer's progress bar."""
+    cfg = resolve(cfg)  # a reporter not installed, a bad Trainer argument: said before anything
     out = Path(cfg.out)
     existed = out.is_dir() and any(out.iterdir())  # before the claim creates it
     with ExitStack() as claim:

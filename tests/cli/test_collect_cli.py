@@ -89,7 +89,7 @@ def test_killed_collection_leaves_no_worker_running(tmp_path):
 
     out = tmp_path / "d"
     cmd = [sys.executable, "-m", "lhf_hf", "collect", "darkroom", "--out", str(out), "--workers",
-           "2", "--tasks", "3,10,40,62", "--histories", "10", "--steps", "4000", "--no-progress"]  # fmt: skip
+           "2", "--collector", "sb3", "--tasks", "3,10,40,62", "--histories", "10", "--steps", "4000", "--no-progress"]  # fmt: skip
     parent = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     workers = []
     deadline = time.monotonic() + 120
@@ -106,3 +106,46 @@ def test_killed_collection_leaves_no_worker_running(tmp_path):
     gone, alive = psutil.wait_procs(workers, timeout=30)
     assert not alive, [p.pid for p in alive]
     assert not (out / "meta" / "info.json").exists()  # nothing finished it behind our back
+
+
+@pytest.mark.parametrize(
+    "argv, collector, said",
+    [
+        (["darkroom"], "batched", "the batched collector (the default for PPO on darkroom; "
+                                  "--collector sb3 runs the SB3 reference)"),
+        (["darkroom", "--collector", "sb3"], "sb3", None),
+        (["metaworld-reach"], "sb3", "the sb3 collector (the default for PPO on metaworld-reach)"),
+        (["metaworld-reach", "--algo", "sac"], "sb3", "the default for SAC on metaworld-reach"),
+    ],
+)  # fmt: skip
+def test_the_default_collector_is_said_and_passed_resolved(
+    tmp_path, capsys, monkeypatch, argv, collector, said
+):
+    import lhf_hf.collection
+
+    ran = []
+    monkeypatch.setattr(lhf_hf.collection, "collect", lambda config, *a, **k: ran.append(config))
+    assert main(["collect", *argv, "--tasks", "0", "--out", str(tmp_path / "d")]) == 0
+    assert [c.collector for c in ran] == [collector]
+    err = capsys.readouterr().err
+    assert (said in err) if said else ("collector" not in err), err
+
+
+def test_a_resume_goes_on_with_the_collector_the_folder_was_started_with(
+    tmp_path, capsys, monkeypatch
+):
+    """A collection started with SB3 (e.g. before the batched default): ``--resume`` without
+    ``--collector`` continues it with SB3 (a batched config would be refused as another one)."""
+    import lhf_hf.collection
+
+    out = tmp_path / "d"
+    (out / "meta").mkdir(parents=True)
+    (out / "meta" / "lhf_config.json").write_text(json.dumps({"collector": "sb3"}))
+    ran = []
+    monkeypatch.setattr(lhf_hf.collection, "collect", lambda config, *a, **k: ran.append(config))
+    argv = ["collect", "darkroom", "--tasks", "0", "--out", str(out)]
+    assert main([*argv, "--resume"]) == 0 and ran.pop().collector == "sb3"
+    assert f"the sb3 collector (the one {out} was started with)" in capsys.readouterr().err
+    assert main([*argv, "--resume", "--collector", "batched"]) == 0  # as asked: refused later
+    assert ran.pop().collector == "batched"
+    assert main([*argv, "--overwrite"]) == 0 and ran.pop().collector == "batched"

@@ -10,6 +10,7 @@ import pytest
 
 from lhf_hf.histories import load_histories
 from lhf_hf.histories.writer import is_complete
+from lhf_hf.utils.launcher import accelerate_config
 
 ROOT = Path(__file__).resolve().parents[2]
 ARGS = [
@@ -23,6 +24,8 @@ ARGS = [
     "40",
     "--workers",
     "1",
+    "--collector",
+    "sb3",
     "--no-progress",
 ]
 
@@ -34,7 +37,7 @@ def _launch(out: Path, env: dict | None = None) -> subprocess.CompletedProcess:
             accelerate,
             "launch",
             "--config_file",
-            str(ROOT / "training/accelerate/cpu_2proc.yaml"),
+            str(accelerate_config()),  # the one the package ships
             str(ROOT / "tests/launch_probe.py"),  # lhf as a program, saying how each rank ended
             *ARGS,
             "--out",

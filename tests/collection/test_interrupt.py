@@ -26,6 +26,8 @@ ARGS = [
     "2000",
     "--workers",
     "2",
+    "--collector",
+    "sb3",
     "--no-progress",
 ]
 

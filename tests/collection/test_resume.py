@@ -23,6 +23,8 @@ ARGS = [
     "noisy",
     "--workers",
     "1",
+    "--collector",
+    "sb3",
     "--no-progress",
 ]
 

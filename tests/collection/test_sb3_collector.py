@@ -39,7 +39,8 @@ def test_independent_learners_differ():
 
 @pytest.mark.slow
 def test_same_seed_same_data(tmp_path):
-    cfg = dict(env_id="darkroom", tasks="12", histories=4, steps=100, protocol="noisy", workers=1)
+    cfg = dict(env_id="darkroom", tasks="12", histories=4, steps=100, protocol="noisy", workers=1,
+               collector="sb3")  # fmt: skip
     a = collect(CollectConfig(**cfg), tmp_path / "a", progress=False)
     b = collect(CollectConfig(**cfg), tmp_path / "b", progress=False)
     assert a.fingerprint == b.fingerprint
@@ -52,7 +53,9 @@ def test_same_seed_same_data(tmp_path):
 def test_ppo_histories_improve_on_darkroom(tmp_path):
     # Paper protocol, 16 copies per learner, 25 episodes: late episodes must beat early ones clearly.
     ds = collect(
-        CollectConfig("darkroom", tasks="30,50", histories=16, steps=500, workers=2),
+        CollectConfig(
+            "darkroom", tasks="30,50", histories=16, steps=500, workers=2, collector="sb3"
+        ),
         tmp_path / "d",
         progress=False,
     )

@@ -23,12 +23,13 @@ from lhf_hf.configs.collect import ppo_preset
         (dict(collector="jax"), "collector must be one of"),
         (dict(workers=0), "workers"),
         (dict(device="gpu", collector="batched"), "device must be 'cpu' or 'cuda\\[:N\\]'"),
-        (dict(device="cuda"), "needs collector='batched'"),
+        (dict(device="cuda", collector="sb3"), "needs collector='batched'"),
+        (dict(device="cuda", algo="sac", env_id="metaworld-reach"), "needs collector='batched'"),
     ],
 )
 def test_rejects(kwargs, match):
     with pytest.raises((ValueError, IndexError), match=match):
-        CollectConfig("darkroom", **kwargs)
+        CollectConfig(**{"env_id": "darkroom", **kwargs})
 
 
 def test_unknown_env():
@@ -56,6 +57,28 @@ def test_tasks_and_presets():
     assert c.num_random_histories == 3 and c.episodes_per_history == 50
     assert CollectConfig.from_dict(c.to_dict()) == c
     assert "workers" not in c.identity()
+
+
+@pytest.mark.parametrize(
+    "env_id, algo, collector",
+    [
+        ("darkroom", "ppo", "batched"),
+        ("dark-key-to-door", "ppo", "batched"),
+        ("metaworld-reach", "ppo", "sb3"),  # no batched core
+        ("metaworld-reach", "sac", "sb3"),  # the batched collector runs PPO only
+    ],
+)
+def test_the_default_collector_is_resolved_per_env_and_recorded(env_id, algo, collector):
+    """``auto`` becomes the batched collector where it applies, SB3 elsewhere; the config (and so
+    the dataset's recorded config and identity) holds the collector, never ``auto``."""
+    c = CollectConfig(env_id, algo=algo, tasks="0")
+    assert c.collector == collector
+    assert c.to_dict()["collector"] == c.identity()["collector"] == collector
+    assert CollectConfig.from_dict(c.to_dict()) == c
+    assert CollectConfig(env_id, algo=algo, tasks="0", collector="sb3").collector == "sb3"
+    if collector == "sb3":  # the batched collector, asked for where it does not apply: said so
+        with pytest.raises(ValueError, match="use collector='sb3'"):
+            CollectConfig(env_id, algo=algo, tasks="0", collector="batched")
 
 
 def test_device_is_part_of_the_identity_unless_default():

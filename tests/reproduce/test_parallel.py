@@ -239,7 +239,7 @@ def test_a_stage_process_unwinds_on_sigterm(monkeypatch, tmp_path):
         finally:
             unwound.append(True)
 
-    monkeypatch.setattr(worker, "plan_stages", lambda exp, work: ([stage], {}))
+    monkeypatch.setattr(worker, "plan_stages", lambda exp, work, progress=True: ([stage], {}))
     monkeypatch.setattr(worker.StageRunner, "run", run)
 
     def guard(signum, frame):  # without the worker's handler: this, not the end of pytest
@@ -254,3 +254,34 @@ def test_a_stage_process_unwinds_on_sigterm(monkeypatch, tmp_path):
     finally:
         signal.signal(signal.SIGTERM, original)
     assert info.value.code == 128 + signal.SIGTERM and unwound == [True]
+
+
+def test_no_progress_reaches_every_stage_and_the_children(tmp_path, monkeypatch):
+    """``lhf reproduce --no-progress``: every stage's work gets ``progress=False``, in this process
+    or in a ``--jobs`` child (``--no-progress`` on its command line)."""
+    import importlib
+
+    from lhf_hf.reproduce import load_experiment, plan_stages, worker
+    from lhf_hf.reproduce.parallel import worker_command
+
+    module = importlib.import_module("lhf_hf.reproduce.reproduce")  # the module, not the function
+
+    got = []
+    for name in ("collect", "derive_half", "run_filter", "train", "evaluate"):
+        monkeypatch.setattr(module, name, lambda *a, _n=name, **k: got.append((_n, k["progress"])))
+    exp = load_experiment("darkroom-half", "quick", 1, ["ad"])  # every kind of stage
+    for progress in (False, True):
+        got.clear()
+        stages, _ = plan_stages(exp, tmp_path / "w", progress=progress)
+        for stage in stages:
+            stage.fn(tmp_path / stage.kind)
+        assert {n for n, _ in got} == {"collect", "derive_half", "run_filter", "train", "evaluate"}
+        assert {p for _, p in got} == {progress}
+    stage = types.SimpleNamespace(hash="abc")
+    assert "--no-progress" in worker_command("x.yaml", "quick", 1, tmp_path, False)(stage)
+    assert "--no-progress" not in worker_command("x.yaml", "quick", 1, tmp_path)(stage)
+    planned = []
+    monkeypatch.setattr(worker, "plan_stages", lambda e, w, p: planned.append(p) or ([], {}))
+    argv = ["darkroom-main", "quick", "--runs", "1", "--work", str(tmp_path), "--stage", "abc"]
+    assert worker.main([*argv, "--no-progress"]) == 2 and worker.main(argv) == 2  # no such stage
+    assert planned == [False, True]

@@ -571,9 +571,9 @@ def test_a_train_stage_resumes_a_whole_checkpoint_or_starts_clean(tmp_path, monk
     seen = []
     real_train = reproduce_module.train
 
-    def train(cfg):
+    def train(cfg, **kw):
         seen.append((model.exists(), cfg.resume, cfg.overwrite))
-        return real_train(cfg)
+        return real_train(cfg, **kw)
 
     monkeypatch.setattr(reproduce_module, "train", train)
     runner.run(stage)

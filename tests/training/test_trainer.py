@@ -23,6 +23,7 @@ from lhf_hf.filtering.select import filter_histories
 from lhf_hf.modeling import ICRLModel, icrl_config
 from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
 from lhf_hf.training.trainer import last_checkpoint
+from lhf_hf.utils.launcher import accelerate_config
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = dict(
@@ -348,7 +349,7 @@ def test_two_accelerate_processes_report_the_one_process_losses(small_darkroom, 
         "-m",
         "accelerate.commands.launch",
         "--config_file",
-        str(REPO / "training/accelerate/cpu_2proc.yaml"),
+        str(accelerate_config()),  # the one the package ships
         "--main_process_port",
         "29547",
     ]
