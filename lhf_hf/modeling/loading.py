@@ -10,7 +10,6 @@ from transformers import AutoConfig, AutoModel
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.utils.hub import resolve
 
-from . import modeling_icrl  # noqa: F401  (registers lhf_icrl with AutoConfig / AutoModel)
 from .modeling_icrl import ICRLModel
 
 
@@ -22,7 +21,8 @@ def load_model(path: str) -> ICRLModel:
             f"no model checkpoint at {path} (config.json missing; made by `lhf train`)"
         )
     try:
-        config = AutoConfig.from_pretrained(p)
+        # lhf_hf's own classes, never the code a checkpoint carries beside its weights
+        config = AutoConfig.from_pretrained(p, trust_remote_code=False)
     except (OSError, ValueError, TypeError) as exc:  # transformers: OSError for malformed JSON
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise UserError(f"{p / 'config.json'} is not a readable model config ({why})") from None
@@ -37,7 +37,7 @@ def load_model(path: str) -> ICRLModel:
             )
         raise NotFoundError(f"{path} has a config.json but no weights (model.safetensors)")
     check_weights(p, config)
-    model = AutoModel.from_pretrained(p, use_safetensors=True).eval()
+    model = AutoModel.from_pretrained(p, use_safetensors=True, trust_remote_code=False).eval()
     bad = [
         n for n, t in model.state_dict().items() if t.is_floating_point() and not t.isfinite().all()
     ]

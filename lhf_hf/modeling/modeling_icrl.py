@@ -27,15 +27,15 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 from torch import nn
-from transformers import AutoConfig, AutoModel, LlamaModel
+from transformers import LlamaModel
 from transformers.modeling_outputs import ModelOutput
 from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
 
 from lhf_hf.errors import UserError
 
-from . import train_attention
 from .attention import band_mask, token_windows
 from .configuration_icrl import ICRLConfig
+from .train_attention import NAME as TRAIN_ATTENTION  # registers the attention function
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # Gaussian head: keeps the NLL finite early in training
 
@@ -96,7 +96,7 @@ class ICRLModel(ICRLPreTrainedModel):
         super().__init__(config)
         if requested is None:
             # SDPA, with training's attention dropout computed faster (train_attention.py)
-            config._attn_implementation = train_attention.NAME
+            config._attn_implementation = TRAIN_ATTENTION
         self.backbone = LlamaModel(config)
         # Tokens enter through inputs_embeds: the vocabulary embedding is never used, and an unused
         # parameter would break DistributedDataParallel's gradient reduction.
@@ -425,7 +425,3 @@ class ICRLModel(ICRLPreTrainedModel):
         else:
             state_loss = F.mse_loss(out["next_state_pred"][mask], next_states[mask].to(self._dtype))
         return reward_loss + state_loss + return_loss
-
-
-AutoConfig.register(ICRLConfig.model_type, ICRLConfig, exist_ok=True)
-AutoModel.register(ICRLConfig, ICRLModel, exist_ok=True)
