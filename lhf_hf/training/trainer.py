@@ -16,7 +16,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import torch
-from huggingface_hub import HfApi
+from huggingface_hub import CommitOperationAdd, HfApi
 from transformers import Trainer, TrainerCallback, set_seed
 from transformers.trainer_utils import PREFIX_CHECKPOINT_DIR
 
@@ -26,8 +26,9 @@ from lhf_hf.envs import get_spec
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.filtering.counts import selection_counts
 from lhf_hf.histories import load_histories
-from lhf_hf.modeling import ICRLConfig, ICRLModel
+from lhf_hf.modeling import MODEL_CODE_FILES, ICRLConfig, ICRLModel, save_model_code
 from lhf_hf.modeling.loading import check_weights
+from lhf_hf.utils.hub import public_contents
 from lhf_hf.utils.io import (
     give_umask_mode,
     read_json,
@@ -88,10 +89,13 @@ class WindowTrainer(Trainer):
         return None
 
     def _save(self, output_dir: str | None = None, state_dict=None):
-        """Trainer's save (weights, config), with the training arguments as JSON, not a pickle."""
+        """Trainer's save (weights, config), with the model's code beside them (so that
+        transformers alone loads the folder) and the training arguments as JSON, not a pickle."""
+        out = Path(output_dir if output_dir is not None else self.args.output_dir)
+        if self.args.should_save:  # the code first: config.json's auto_map names its files
+            save_model_code(out, self.model.config)
         super()._save(output_dir, state_dict)
         if self.args.should_save:
-            out = Path(output_dir if output_dir is not None else self.args.output_dir)
             for weights in out.glob("model*.safetensors"):  # 0600 from safetensors: the umask's
                 give_umask_mode(weights)
             (out / PICKLED_TRAINING_ARGS).unlink(missing_ok=True)
@@ -110,23 +114,25 @@ class WindowTrainer(Trainer):
 
 
 class _PushCheckpoints(TrainerCallback):
-    """Pushes each saved checkpoint's weights, config and arguments (JSON) to the model repo.
+    """Pushes each saved checkpoint's weights, config, model code and arguments (JSON, without
+    local paths) to the model repo.
 
     Trainer's own ``hub_strategy="every_save"`` would upload the output folder with the pickled
     ``training_args.bin`` in it; this pushes the same files as one commit per save ("Training in
     progress, step N"), blocking, so a failed push stops training with the Hub's error.
     """
 
-    FILES = ["config.json", "model.safetensors", TRAINING_ARGS_FILE]
+    FILES = ["config.json", "model.safetensors", TRAINING_ARGS_FILE, *MODEL_CODE_FILES]
 
     def on_save(self, args, state, control, **kwargs):
         if not state.is_world_process_zero:
             return
-
-        HfApi().upload_folder(
+        folder = Path(args.output_dir) / f"checkpoint-{state.global_step}"
+        files = [name for name in self.FILES if (folder / name).is_file()]
+        public = public_contents(folder, files)  # as `lhf push` uploads them: no local paths
+        HfApi().create_commit(
             repo_id=args.hub_model_id,
-            folder_path=Path(args.output_dir) / f"checkpoint-{state.global_step}",
-            allow_patterns=self.FILES,
+            operations=[CommitOperationAdd(f, public.get(f, str(folder / f))) for f in files],
             commit_message=f"Training in progress, step {state.global_step}",
             token=args.hub_token,
             revision=args.hub_revision,
@@ -137,7 +143,7 @@ class _PushCheckpoints(TrainerCallback):
 CHECKPOINT_FILES = re.compile(
     r"^(config\.json|model.*\.safetensors|optimizer\.pt|scheduler\.pt|rng_state(_\d+)?\.pth|"
     r"trainer_state\.json|training_args\.(json|bin)|lhf_train_identity\.json|"
-    r"generation_config\.json|scaler\.pt)$"
+    r"generation_config\.json|scaler\.pt|" + "|".join(map(re.escape, MODEL_CODE_FILES)) + r")$"
 )
 KEEP_CHECKPOINTS = 2
 

@@ -315,17 +315,21 @@ def push_folder(
     revision: str | None = None,
     token: str | None = None,
     commit_message: str | None = None,
+    added: dict[str, bytes] | None = None,
 ) -> dict:
     """Upload ``path`` to ``repo_id`` (created if absent) as one commit, ``card`` as its README.md.
 
-    ``repo_id`` must be valid (``validate_repo_id``); ``what`` names the artifact in messages; ``tag`` (if any) is moved onto the new commit.  Returns
+    ``repo_id`` must be valid (``validate_repo_id``); ``what`` names the artifact in messages; ``tag`` (if any) is moved onto the new commit.
+    ``added``: relative path -> content the artifact publishes beside (or instead of) the folder's
+    files (``HubArtifact.published``).  Returns
     ``{repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises ``HubError`` on
     any failure (a success is only reported once the commit and the tag exist).
     """
     _require_token(token)
     branch = revision or "main"
-    files = upload_files(path)
-    public = public_contents(path, files)
+    added = {f: b for f, b in (added or {}).items() if f != C.CARD_PATH}
+    files = sorted(set(upload_files(path)) | set(added))
+    public = public_contents(path, [f for f in files if f not in added]) | added
     ops = [
         CommitOperationAdd(f, public[f] if f in public else str(path / f))
         for f in files
@@ -421,6 +425,12 @@ class HubArtifact(ABC):
         """The README.md the pushed artifact carries, with load snippets naming ``repo_id``."""
 
     @classmethod
+    def published(cls, path: Path) -> dict[str, bytes]:
+        """Files the push uploads beside the folder's, or instead of them (relative path ->
+        content); {}: the folder's files (as ``public_contents`` makes them)."""
+        return {}
+
+    @classmethod
     def push(cls, path: str | Path, repo_id: str, **kwargs) -> dict:
         """Check, render the card, push as one commit: ``{kind, **push_folder's result}``."""
         path = Path(path)
@@ -433,6 +443,13 @@ class HubArtifact(ABC):
             )
         card = cls.card(path, repo_id)
         out = push_folder(
-            path, repo_id, repo_type=cls.repo_type, card=card, what=cls.kind, tag=cls.tag, **kwargs
+            path,
+            repo_id,
+            repo_type=cls.repo_type,
+            card=card,
+            what=cls.kind,
+            tag=cls.tag,
+            added=cls.published(path),
+            **kwargs,
         )
         return {"kind": cls.kind, **out}

@@ -20,7 +20,8 @@ from lhf_hf.cli.main import main
 from lhf_hf.configs import FilterConfig, TrainConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.filtering.select import filter_histories
-from lhf_hf.modeling import ICRLModel, icrl_config
+from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES, ICRLModel, icrl_config
+from lhf_hf.modeling.remote_code import model_code
 from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
 from lhf_hf.training.trainer import last_checkpoint
 from lhf_hf.utils.launcher import accelerate_config
@@ -463,6 +464,8 @@ def test_rotation_keeps_checkpoints_holding_what_training_did_not_write(tmp_path
             (tmp_path / f"checkpoint-{step}" / name).write_text("x")
     (tmp_path / "checkpoint-1" / "notes.txt").write_text("mine")
     (tmp_path / "checkpoint-2" / "rng_state.pth").write_text("x")
+    for name in MODEL_CODE_FILES:  # the model's code: written by training too
+        (tmp_path / "checkpoint-2" / name).write_text("x")
     _RotateOwnCheckpoints().on_save(
         SimpleNamespace(output_dir=str(tmp_path)), SimpleNamespace(is_world_process_zero=True), None
     )
@@ -500,3 +503,15 @@ def test_a_diverged_training_writes_no_model(small_darkroom, tmp_path):
     with pytest.raises(ValueError, match="training diverged: .* NaN or infinite"):
         train(cfg)
     assert not (tmp_path / "m" / "model.safetensors").exists()
+
+
+def test_every_saved_folder_carries_the_model_code(small_darkroom, tmp_path):
+    """The final model and every checkpoint-N: config.json's auto_map and the files it names, the
+    bundle of this lhf_hf (transformers alone loads them: tests/modeling/test_transformers_only.py)."""
+    cfg = TrainConfig(dataset=str(small_darkroom.root), objective="ad", out=str(tmp_path / "m"),
+                      preset="tiny", context_length=40, batch_size=4, save_steps=1, max_steps=2)  # fmt: skip
+    out = train(cfg, progress=False)
+    code = model_code()
+    for folder in (out, out / "checkpoint-1", out / "checkpoint-2"):
+        assert json.loads((folder / "config.json").read_text())["auto_map"] == AUTO_MAP
+        assert {p.name: p.read_text() for p in folder.glob("*.py")} == code, folder
