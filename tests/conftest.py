@@ -71,3 +71,18 @@ def handlers():
     yield held
     for sig, handler in held.items():
         signal.signal(sig, handler)
+
+
+@pytest.fixture(scope="session")
+def tiny_model(small_darkroom_batched, tmp_path_factory):
+    """A tiny DICP trained by ``lhf train`` (4 steps, a checkpoint every 2) with band attention
+    over 8 transitions, so that evaluating it (the streaming cache) takes seconds: the checkpoint
+    whose card, code and transformers-only loading the tests check."""
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.training import train
+
+    out = tmp_path_factory.mktemp("tiny-model") / "dicp"
+    cfg = TrainConfig(dataset=str(small_darkroom_batched.root), objective="dicp", out=str(out),
+                      preset="tiny", context_length=8, attention="band", sequence_length=16,
+                      batch_size=4, max_steps=4, save_steps=2, logging_steps=2)  # fmt: skip
+    return train(cfg, progress=False)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import json
+import shlex
+from pathlib import Path, PurePosixPath
 
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
+from lhf_hf.envs import split_part
 from lhf_hf.utils.io import save_figure_atomic, write_text_atomic
 from lhf_hf.utils.templates import template_path
 
@@ -16,7 +19,7 @@ OBJECTIVE_NAMES = {
     "dpt": "Decision-Pretrained Transformer (DPT)",
     "dicp": "Distillation for In-Context Planning (DICP)",
 }
-NO_EVAL = "Not evaluated yet: run `lhf evaluate --model <this folder> --env <env>`."
+NO_EVAL = "Not evaluated yet: the `lhf evaluate` command above runs the paper's evaluation."
 
 
 def plot_loss(log_history: list[dict], path: Path) -> None:
@@ -128,6 +131,9 @@ def render_model_card(
         pipeline_tag="reinforcement-learning",
     )
     model_name = f"{config.objective.upper()} on {ds['env_id']}" + (" with LHF" if sel else "")
+    eval_out = shlex.quote(f"{PurePosixPath(load_path).name}-eval")  # beside where it is run
+    split_seed = config.split_seed if config.split_seed is not None else 0
+    tasks, tasks_note, eval_flags = _rollout_tasks(config, ds["env_id"], split_seed)
     if evaluations:
         card_data.model_name = model_name
         card_data.eval_results = model_index(evaluations)
@@ -146,7 +152,14 @@ def render_model_card(
         params=f"{params:,}" if params else "?",
         context_length=config.context_length,
         tokens=config.max_tokens,
-        load_path=load_path,
+        load_path_py=json.dumps(load_path),  # a Python string literal
+        split_seed=split_seed,
+        tasks=tasks,
+        tasks_note=tasks_note,
+        eval_out=eval_out,
+        evaluate_command=" ".join(
+            ["lhf evaluate --model", shlex.quote(load_path), "--out", eval_out, *eval_flags]
+        ),
         label_positions=config.label_positions,
         xi_phrase=(
             f", xi = {config.dynamics_coef}, reward loss weighting '{config.reward_weighting}'"
@@ -184,6 +197,31 @@ def render_model_card(
         versions=", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()),
         eval_section=eval_section(evaluations or []),
     ).content
+
+
+def _rollout_tasks(config, env_id: str, split_seed: int) -> tuple[list[int], str, list[str]]:
+    """(tasks, what they are, ``lhf evaluate`` flags) for the card's instructions: the test tasks
+    of the model's split that it did not train on, which ``lhf evaluate`` accepts as they are
+    (``evaluation.seen``); where none is left, or the model does not record its training tasks,
+    the test tasks, which ``lhf evaluate`` reports as seen (``--allow-seen``)."""
+    test = split_part(env_id, "test", split_seed)
+    trained = config.train_tasks
+    if trained is None:
+        return (
+            test,
+            "its split's test tasks (which tasks it trained on is not recorded)",
+            ["--allow-seen"],
+        )
+    unseen = [t for t in test if t not in set(trained)]
+    if len(unseen) == len(test):
+        return test, f"the test tasks of split {split_seed}, unseen in training", []
+    if unseen:
+        return (
+            unseen,
+            f"the test tasks of split {split_seed} but the {len(test) - len(unseen)} it trained on",
+            ["--tasks", ",".join(map(str, unseen))],
+        )
+    return test, f"the test tasks of split {split_seed}: it trained on every one", ["--allow-seen"]
 
 
 def write_model_card(
