@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from transformers import AutoConfig
@@ -11,6 +12,7 @@ from lhf_hf.errors import UserError
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
+from lhf_hf.modeling.remote_code import model_code, with_auto_map
 from lhf_hf.utils.hub import HubArtifact
 from lhf_hf.utils.io import read_json
 
@@ -37,7 +39,26 @@ class CheckpointArtifact(HubArtifact):
             raise UserError(f"{path}: no weights (model.safetensors)")
         if not (path / TRAIN_CONFIG_FILE).exists():
             raise UserError(f"{path}: {TRAIN_CONFIG_FILE} is missing (a checkpoint of `lhf train`)")
+        auto_map = read_json(path / "config.json").get("auto_map") or {}
+        missing = sorted(
+            {f"{ref.split('.')[0]}.py" for ref in auto_map.values()}
+            - {p.name for p in path.glob("*.py")}
+        )
+        if missing:  # transformers alone could not load it (trust_remote_code)
+            raise UserError(
+                f"{path}: config.json's auto_map names {', '.join(missing)}, which the folder lacks"
+            )
         load_model(str(path))
+
+    @classmethod
+    def published(cls, path: Path) -> dict[str, bytes]:
+        """A checkpoint saved before checkpoints carried their code gets it in the upload, and
+        ``auto_map`` in its ``config.json`` (so transformers alone loads the repo); {} otherwise."""
+        config = read_json(path / "config.json")
+        if config.get("auto_map"):
+            return {}
+        config = (json.dumps(with_auto_map(config), indent=2, sort_keys=True) + "\n").encode()
+        return {"config.json": config} | {n: text.encode() for n, text in model_code().items()}
 
     @classmethod
     def verify(cls, path: Path) -> list[str]:
@@ -77,8 +98,9 @@ class CheckpointArtifact(HubArtifact):
     def card(cls, path: Path, repo_id: str) -> str:
         evals = path / MODEL_EVALS_FILE
         return render_model_card(
-            AutoConfig.from_pretrained(path),
+            AutoConfig.from_pretrained(path, trust_remote_code=False),
             read_json(path / TRAIN_CONFIG_FILE),
             load_path=repo_id,
             evaluations=read_json(evals) if evals.exists() else None,
+            public=True,
         )

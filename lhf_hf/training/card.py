@@ -9,6 +9,7 @@ from pathlib import Path, PurePosixPath
 from huggingface_hub import EvalResult, ModelCard, ModelCardData
 
 from lhf_hf.envs import split_part
+from lhf_hf.utils.hub import public_source
 from lhf_hf.utils.io import save_figure_atomic, write_text_atomic
 from lhf_hf.utils.templates import template_path
 
@@ -118,8 +119,18 @@ def model_index(evaluations: list[dict]) -> list:
 
 
 def render_model_card(
-    config, provenance: dict, load_path: str, evaluations: list[dict] | None = None
+    config,
+    provenance: dict,
+    load_path: str,
+    evaluations: list[dict] | None = None,
+    public: bool = False,
 ) -> str:
+    """The card's text; ``load_path``: what its snippets load (the folder, or the repo id);
+    ``public``: for a push (the dataset and selection by name, never a path of this machine)."""
+
+    def source(path: str) -> str:
+        return public_source(path) if public else f"`{path}`"
+
     train = provenance["train"]
     ds = provenance["dataset"]
     sel = provenance.get("selection")
@@ -166,10 +177,10 @@ def render_model_card(
             if config.objective == "dicp"
             else ""
         ),
-        dataset_path=ds["path"],
+        dataset_source=source(ds["path"]),
         dataset_fingerprint=ds["fingerprint"][:16],
         selection_text=(
-            f"`{sel['path']}` ({sel['filter']['strategy']}, lambda {sel['filter']['lam']}; "
+            f"{source(sel['path'])} ({sel['filter']['strategy']}, lambda {sel['filter']['lam']}; "
             f"{sel['selected_unique']} histories kept)"
             if sel
             else "none (every history once)"

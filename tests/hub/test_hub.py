@@ -6,7 +6,9 @@ any non-loopback connection (exit code 97)."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
+from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
@@ -15,6 +17,7 @@ import yaml
 pytestmark = pytest.mark.hub
 
 LOOPBACK_VIOLATION = 97
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _ok(proc: subprocess.CompletedProcess) -> str:
@@ -145,8 +148,6 @@ print(json.dumps(out))
 def test_re_push_mirrors_the_folder_and_moves_the_tag(
     small_darkroom_batched, fake_hub, hub_client, tmp_path
 ):
-    import shutil
-
     from lhf_hf.utils.outputs import record_manifest
 
     repo = "lhf-test/darkroom-repush"
@@ -184,7 +185,8 @@ def test_selection_and_checkpoint_round_trip(
     files = set(_git(model_git, "ls-files").splitlines())
     assert {"config.json", "model.safetensors", "train_config.json", "README.md"} <= files
     assert not any(f.startswith("checkpoint-") for f in files)  # optimizer states stay local
-    assert f'AutoModel.from_pretrained("{model_repo}")' in (model_git / "README.md").read_text()
+    card = (model_git / "README.md").read_text()
+    assert f'AutoModel.from_pretrained("{model_repo}", trust_remote_code=True)' in card
     sel_card = (fake_hub.repo_path("datasets", *sel_repo.split("/")) / "README.md").read_text()
     assert _card_meta(sel_card)["configs"][0]["data_files"] == "selection.parquet"
     # no path of this machine in anything pushed with the dataset or the selection
@@ -246,6 +248,8 @@ print(json.dumps({{"counts": sel.counts(), "objective": m.config.objective}}))
 
 @pytest.mark.slow
 def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_path):
+    from lhf_hf.modeling import MODEL_CODE_FILES
+
     repo = "lhf-test/trained-while-pushing"
     _ok(
         hub_client(
@@ -262,9 +266,103 @@ def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_pat
     assert {"model.safetensors", "config.json", "train_config.json", "training_loss.png"} <= files
     card = (git_repo / "README.md").read_text()
     assert "lhf_hf" in _card_meta(card)["tags"]  # our card, not Trainer's generic one
-    assert f'AutoModel.from_pretrained("{repo}")' in card
+    assert f'AutoModel.from_pretrained("{repo}", trust_remote_code=True)' in card
+    # every commit, the per-save ones included: the model code, and no path of this machine
+    for rev in _git(git_repo, "rev-list", "--all").splitlines()[
+        :-1
+    ]:  # the last: the repo's creation
+        tree = _git(git_repo, "ls-tree", "--name-only", rev).splitlines()
+        assert set(MODEL_CODE_FILES) <= set(tree), rev
+    assert _grep_history(git_repo, str(tmp_path)) == []
     pushed = (git_repo / "model.safetensors").read_bytes()
     assert pushed == (tmp_path / "run" / "model.safetensors").read_bytes()
+
+
+def _grep_history(git_repo, needle: str) -> list[str]:
+    """``rev:path`` of every file, in every commit of ``git_repo``, that contains ``needle``."""
+    revs = _git(git_repo, "rev-list", "--all").splitlines()
+    proc = subprocess.run(["git", "-C", str(git_repo), "grep", "-l", "-F", needle, *revs],
+                          capture_output=True, text=True)  # fmt: skip
+    assert proc.returncode in (0, 1), proc.stderr  # 1: no match
+    return proc.stdout.split()
+
+
+TRANSFORMERS_ALONE = """
+import json, sys
+from transformers import AutoConfig, AutoModel
+got = []
+for repo in sys.argv[1:]:
+    config = AutoConfig.from_pretrained(repo, trust_remote_code=True)
+    model = AutoModel.from_pretrained(repo, trust_remote_code=True)
+    got.append([type(config).__module__, type(model).__module__, config.objective])
+assert not [m for m in sys.modules if m.split(".")[0] == "lhf_hf"]
+from lhf_hf.modeling import load_model  # and lhf's strict load (the snapshot against its manifest)
+for repo in sys.argv[1:]:
+    assert type(load_model(repo)).__module__ == "lhf_hf.modeling.modeling_icrl"
+print(json.dumps(got))
+"""
+PUSH_ALL = """
+import sys
+from lhf_hf.hub import push
+for path, repo in zip(sys.argv[1::2], sys.argv[2::2]):
+    push(path, repo)
+"""
+
+
+@pytest.mark.slow
+def test_a_pushed_model_carries_its_code_and_no_local_path(
+    small_darkroom_batched, checkpoint, fake_hub, olah, hub_client, tmp_path, tmp_path_factory
+):
+    """What `lhf push` uploads for a model: the code beside the weights (added to a checkpoint
+    saved before checkpoints carried it), transformers alone loads it from the Hub, and no file
+    names a folder of this machine (the dataset, the selection, the model, an evaluation)."""
+    from lhf_hf.configs import EvalConfig
+    from lhf_hf.evaluation import evaluate
+    from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES
+    from lhf_hf.training.card import MODEL_EVALS_FILE
+    from lhf_hf.utils.outputs import record_manifest
+
+    model = tmp_path / "ad"
+    shutil.copytree(checkpoint / "ad", model)
+    evaluate(
+        EvalConfig(model=str(model), out=str(tmp_path / "ev"), tasks="38", episodes=2),
+        progress=False,
+    )
+    assert str(tmp_path / "ev") in (model / MODEL_EVALS_FILE).read_text()
+    repo, old_repo = "lhf-test/ad-no-paths", "lhf-test/ad-saved-without-code"
+    old = tmp_path / "old"  # a checkpoint saved before checkpoints carried their code
+    shutil.copytree(checkpoint / "ad", old)
+    for name in MODEL_CODE_FILES:
+        (old / name).unlink()
+    config = json.loads((old / "config.json").read_text())
+    del config["auto_map"]
+    (old / "config.json").write_text(json.dumps(config, indent=2))
+    marker = json.loads((old / ".lhf_output.json").read_text())
+    record_manifest(old, marker["kind"], marker["mutable"])
+    _ok(hub_client(fake_hub.endpoint, PUSH_ALL, str(model), repo, str(old), old_repo))
+
+    git_repo = fake_hub.repo_path("models", *repo.split("/"))
+    files = set(_git(git_repo, "ls-files").splitlines())
+    assert {*MODEL_CODE_FILES, MODEL_EVALS_FILE, "train_config.json", "training_args.json"} <= files
+    for name in MODEL_CODE_FILES:
+        assert (git_repo / name).read_bytes() == (model / name).read_bytes()
+    for needle in (str(tmp_path_factory.getbasetemp()), str(REPO)):
+        assert _grep_history(git_repo, needle) == [], needle
+    prov = json.loads((git_repo / "train_config.json").read_text())
+    assert prov["dataset"]["path"] == f"local:{small_darkroom_batched.root.name}"
+    card = (git_repo / "README.md").read_text()
+    assert f"lhf evaluate --model {repo} --out ad-no-paths-eval" in card
+    assert f"| dataset | a local dataset `{small_darkroom_batched.root.name}`" in card
+
+    old_git = fake_hub.repo_path("models", *old_repo.split("/"))  # the push added the code
+    assert json.loads((old_git / "config.json").read_text())["auto_map"] == AUTO_MAP
+    for name in MODEL_CODE_FILES:
+        assert (old_git / name).read_bytes() == (model / name).read_bytes()
+    for config_module, model_module, objective in _last_json(
+        _ok(hub_client(olah, TRANSFORMERS_ALONE, repo, old_repo))
+    ):
+        assert config_module.startswith("transformers_modules.") and objective == "ad"
+        assert model_module.startswith("transformers_modules.")
 
 
 # ---------------------------------------------------------------------------- bad input
@@ -371,8 +469,6 @@ def test_push_publishes_only_finished_unchanged_artifacts(
 ):
     """What the local readers would refuse is not pushed: files edited after the command wrote
     them, an unfinished folder, a folder of unknown origin; a link is never followed out."""
-    import shutil
-
     from lhf_hf.utils.outputs import MARKER
 
     def copy(name):
