@@ -210,29 +210,27 @@ def render_model_card(
     ).content
 
 
-def _rollout_tasks(config, env_id: str, split_seed: int) -> tuple[list[int], str, list[str]]:
-    """(tasks, what they are, ``lhf evaluate`` flags) for the card's instructions: the test tasks
-    of the model's split that it did not train on, which ``lhf evaluate`` accepts as they are
-    (``evaluation.seen``); where none is left, or the model does not record its training tasks,
-    the test tasks, which ``lhf evaluate`` reports as seen (``--allow-seen``)."""
+def _rollout_tasks(config, env_id: str, split_seed: int) -> tuple[str, str, list[str]]:
+    """(the card's Python expression for the rollout's tasks, what they are, ``lhf evaluate``
+    flags): the test tasks of the model's split that it did not train on, which ``lhf evaluate``
+    accepts as they are (``evaluation.seen``); where none is left, or the model does not record
+    its training tasks, the test tasks, which ``lhf evaluate`` reports as seen (``--allow-seen``)."""
     test = split_part(env_id, "test", split_seed)
+    expr = f'split_part("{env_id}", "test", {split_seed})'
     trained = config.train_tasks
     if trained is None:
-        return (
-            test,
-            "its split's test tasks (which tasks it trained on is not recorded)",
-            ["--allow-seen"],
-        )
+        note = f"the test tasks of split {split_seed} (which tasks it trained on is not recorded)"
+        return expr, note, ["--allow-seen"]
     unseen = [t for t in test if t not in set(trained)]
     if len(unseen) == len(test):
-        return test, f"the test tasks of split {split_seed}, unseen in training", []
+        return expr, f"the test tasks of split {split_seed}, unseen in training", []
     if unseen:
         return (
-            unseen,
+            f"[t for t in {expr} if t not in model.config.train_tasks]",
             f"the test tasks of split {split_seed} but the {len(test) - len(unseen)} it trained on",
             ["--tasks", ",".join(map(str, unseen))],
         )
-    return test, f"the test tasks of split {split_seed}: it trained on every one", ["--allow-seen"]
+    return expr, f"the test tasks of split {split_seed}: it trained on every one", ["--allow-seen"]
 
 
 def write_model_card(

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 import torch
-from transformers import AttentionInterface
+from transformers import AttentionInterface, AutoConfig, AutoModel
 from transformers.masking_utils import ALL_MASK_ATTENTION_FUNCTIONS, sdpa_mask
 
-from lhf_hf.modeling import ICRLModel, icrl_config, load_model, save_model_code
+from lhf_hf.modeling import ICRLConfig, ICRLModel, icrl_config, load_model, save_model_code
 from lhf_hf.modeling import train_attention as package_attention
 from lhf_hf.modeling.remote_code import AUTO_MAP, MODEL_CODE, MODEL_CODE_FILES, model_code
 
@@ -150,7 +150,9 @@ def test_load_model_reads_a_checkpoint_saved_before_checkpoints_carried_code(tmp
     assert all(torch.equal(loaded.state_dict()[k], v) for k, v in model.state_dict().items())
 
 
-def test_load_model_never_runs_the_code_a_checkpoint_carries(tmp_path):
+def test_with_lhf_hf_imported_a_checkpoints_code_never_runs(tmp_path):
+    """load_model, and the Auto classes even with trust_remote_code=True, build lhf_hf's own
+    registered classes (import lhf_hf.modeling registers them; transformers prefers them)."""
     model = ICRLModel(icrl_config("tiny", objective="ad", env_id="darkroom", state_bins=9))
     save_model_code(tmp_path / "m", model.config)
     model.save_pretrained(tmp_path / "m")
@@ -158,3 +160,5 @@ def test_load_model_never_runs_the_code_a_checkpoint_carries(tmp_path):
     for name in ("configuration_icrl.py", "modeling_icrl.py"):
         (tmp_path / "m" / name).write_text("raise RuntimeError('the checkpoint code ran')\n")
     assert type(load_model(str(tmp_path / "m"))) is ICRLModel
+    assert type(AutoConfig.from_pretrained(tmp_path / "m", trust_remote_code=True)) is ICRLConfig
+    assert type(AutoModel.from_pretrained(tmp_path / "m", trust_remote_code=True)) is ICRLModel

@@ -78,7 +78,9 @@ def test_the_card_rolls_out_on_the_test_tasks_the_model_did_not_train_on():
     test = split_part("darkroom", "test", 0)
 
     def tasks(trained):
-        return _rollout_tasks(SimpleNamespace(train_tasks=trained), "darkroom", 0)
+        expr, note, flags = _rollout_tasks(SimpleNamespace(train_tasks=trained), "darkroom", 0)
+        model = SimpleNamespace(config=SimpleNamespace(train_tasks=trained))
+        return eval(expr, {"split_part": split_part, "model": model}), note, flags  # as the card
 
     assert tasks([0, 1]) == (test, "the test tasks of split 0, unseen in training", [])
     some, note, flags = tasks([test[0], 1])
