@@ -10,7 +10,7 @@ from typing import Literal, get_args
 
 from lhf_hf import constants as C
 from lhf_hf.envs import SPLIT_PARTS, get_spec, split_part
-from lhf_hf.errors import UserError
+from lhf_hf.errors import OutOfRangeError, UserError
 
 from .types import check_types
 
@@ -124,6 +124,11 @@ def parse_tasks(
                 return chosen
             if not count.isdigit() or int(count) < 1:
                 raise UserError(f"tasks {tasks!r}: N in '{part}:N' must be a positive integer")
+            if int(count) > len(chosen):  # a reduced-scale run that is not reduced: say so
+                raise OutOfRangeError(
+                    f"tasks {tasks!r}: {env_id}'s {part} part of split {split_seed} has "
+                    f"{len(chosen)} tasks, fewer than {count}; use '{part}' for all of them"
+                )
             return chosen[: int(count)]
         try:
             tasks = [int(t) for t in key.split(",") if t.strip()]
