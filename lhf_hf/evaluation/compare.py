@@ -33,13 +33,13 @@ def load_results(path: str) -> dict:
         raise NotFoundError(f"{path}: no {RESULTS_FILE} (made by `lhf evaluate`)")
     if changed_since_written(f.parent, [f.name]):  # a hand-edited result is not a result
         raise UserError(
-            f"compare: {f} changed since `lhf evaluate` wrote it (its folder's manifest says "
+            f"{f} changed since `lhf evaluate` wrote it (its folder's manifest says "
             "otherwise): not compared; `lhf verify` shows what changed"
         )
     try:
         r = read_json(f)
     except ValueError as exc:
-        raise UserError(f"compare: {f}: not readable JSON ({exc})") from None
+        raise UserError(f"{f}: not readable JSON ({exc})") from None
     # what compare reads, checked here so that a damaged file is named, not a KeyError
     problem = None
     if not isinstance(r, dict):
@@ -60,7 +60,7 @@ def load_results(path: str) -> dict:
         if isinstance(rollouts, bool) or not isinstance(rollouts, int) or rollouts < 1:
             problem = f"config.rollouts must be an integer >= 1, got {rollouts!r}"
     if problem:
-        raise UserError(f"compare: {f}: {problem} (not an `lhf evaluate` result)")
+        raise UserError(f"{f}: {problem} (not an `lhf evaluate` result)")
     r["_file"] = str(f.resolve())  # the run's identity: a folder and its results file are one run
     return r
 
@@ -79,7 +79,7 @@ def backbone_of(r: dict) -> str:
 
 def _group(paths: list[str], side: str) -> dict[str, list[dict]]:
     if not paths:
-        raise UserError(f"compare: no {side} evaluation runs given")
+        raise UserError(f"no {side} evaluation runs given")
     out: dict[str, list[dict]] = {}
     for p in paths:
         r = load_results(p)
@@ -131,14 +131,14 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
         f = r["_file"]
         if f in seen:
             raise UserError(
-                f"compare: {r['_path']} and {seen[f]} are the same evaluation run ({f}); each run "
+                f"{r['_path']} and {seen[f]} are the same evaluation run ({f}); each run "
                 "may be given once, on one side"
             )
         seen[f] = r["_path"]
     protocols = {_protocol(r) for r in runs}
     if len(protocols) != 1:
         modes = sorted({f"{r['config'].get('context', 'cache')} ({r['_path']})" for r in runs})
-        raise UserError(f"compare: the runs use different context protocols: {modes}")
+        raise UserError(f"the runs use different context protocols: {modes}")
     for backbone in sorted(base):
         b, f = base[backbone], filt[backbone]
         settings: dict[tuple, list[str]] = {}
@@ -153,20 +153,20 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
                 for key, paths in settings.items()
             )
             raise UserError(
-                f"compare: {backbone} runs were evaluated with different settings: {shown}"
+                f"{backbone} runs were evaluated with different settings: {shown}"
             )
         if len(b) == len(f):
             for rb, rf in zip(b, f, strict=True):
                 if _tasks_key(rb) != _tasks_key(rf):
                     raise UserError(
-                        f"compare: {backbone} runs paired in the given order differ in split or "
+                        f"{backbone} runs paired in the given order differ in split or "
                         f"tasks: {rb['_path']} (split {rb.get('split_seed')}, tasks "
                         f"{rb.get('tasks')}) vs {rf['_path']} (split {rf.get('split_seed')}, tasks "
                         f"{rf.get('tasks')}); give the runs in the same order on both sides"
                     )
         elif {_tasks_key(r) for r in b} != {_tasks_key(r) for r in f}:
             raise UserError(
-                f"compare: {backbone} baseline and LHF runs are on different splits or task sets"
+                f"{backbone} baseline and LHF runs are on different splits or task sets"
             )
 
 
@@ -190,13 +190,13 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
     runs = [r for rs in (*base.values(), *filt.values()) for r in rs]
     envs = {r["env_id"] for r in runs}
     if len(envs) != 1:
-        raise UserError(f"compare: the runs are on different envs {sorted(envs)}")
+        raise UserError(f"the runs are on different envs {sorted(envs)}")
     episodes = {len(r["mean_curve"]) for r in runs}
     if len(episodes) != 1:
-        raise UserError(f"compare: the runs have different numbers of episodes {sorted(episodes)}")
+        raise UserError(f"the runs have different numbers of episodes {sorted(episodes)}")
     if set(base) != set(filt):
         raise UserError(
-            f"compare: backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
+            f"backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
         )
     _check_comparable(runs, base, filt)
     rows, curves = [], {}
