@@ -13,6 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from lhf_hf.errors import NotFoundError, UserError
+from lhf_hf.evaluation.compare import load_results
+from lhf_hf.evaluation.evaluate import RESULTS_FILE as EVAL_RESULTS
 from lhf_hf.filtering.artifact import SelectionArtifact
 from lhf_hf.histories.artifact import HistoriesArtifact
 from lhf_hf.hub import artifact_for
@@ -46,7 +48,14 @@ def verify(path: str | Path) -> dict:
     notes = [] if manifest else problems  # an older folder: no manifest to check, only a note
     problems = problems if manifest else []
     artifact = CHECKS.get(kind) if kind else None
-    if artifact is None and kind is None:
+    if kind is None and (path / EVAL_RESULTS).is_file():  # an evaluation written before manifests
+        kind = "evaluation"
+    if kind == "evaluation":  # its results as `lhf compare` reads them
+        try:
+            load_results(str(path))
+        except UserError as exc:
+            problems.append(str(exc))
+    elif artifact is None and kind is None:
         try:
             artifact = artifact_for(path)
         except ValueError:

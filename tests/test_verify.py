@@ -176,3 +176,22 @@ def test_verify_errors(tmp_path, capsys):
     (tmp_path / "x" / "a.txt").write_text("a")
     assert main(["verify", str(tmp_path / "x")]) == 1
     assert "not an lhf output folder" in capsys.readouterr().err
+
+
+def test_an_evaluation_without_manifest_is_recognised_and_checked(tmp_path):
+    from lhf_hf.verify import verify
+
+    ev = tmp_path / "ev"
+    ev.mkdir()
+    result = {
+        "config": {"rollouts": 1},
+        "objective": "ad",
+        "env_id": "darkroom",
+        "mean_curve": [0.0, 1.5],
+    }
+    (ev / "eval_results.json").write_text(json.dumps(result))
+    r = verify(ev)
+    assert (r["kind"], r["manifest"], r["problems"]) == ("evaluation", False, [])
+    assert "no .lhf_output.json" in r["notes"][0]
+    (ev / "eval_results.json").write_text(json.dumps({**result, "mean_curve": [float("nan")]}))
+    assert "not a finite number" in verify(ev)["problems"][0]
