@@ -166,12 +166,15 @@ EPISODE_STAT_NAMES = ("min", "max", "mean", "std", "count")
 def _episode_stats(name: str, arr: np.ndarray, n_episodes: int, horizon: int) -> dict:
     """``stats/{name}/{stat}`` columns of one feature: each row a list of the feature's d values
     (``count``: one value), as LeRobot's ``compute_episode_stats`` gives for a vector feature."""
-    x = arr.reshape(n_episodes, horizon, -1).astype(np.float64)  # (episodes, horizon, d)
+    x = arr.reshape(n_episodes, horizon, -1)  # (episodes, horizon, d), the stored dtype
+    mean = x.sum(1, dtype=np.float64) / horizon
+    # E[x^2] - E[x]^2 in float64: ~4x faster than np.std here (it was most of writing a task)
+    sq = np.einsum("eti,eti->ei", x, x, dtype=np.float64) / horizon
     values = {
-        "min": x.min(1),
-        "max": x.max(1),
-        "mean": x.mean(1),
-        "std": x.std(1),
+        "min": x.min(1).astype(np.float64),
+        "max": x.max(1).astype(np.float64),
+        "mean": mean,
+        "std": np.sqrt(np.maximum(sq - mean * mean, 0.0)),
         "count": np.full((n_episodes, 1), horizon, dtype=np.int64),
     }  # each (episodes, d) or (episodes, 1)
     out = {}

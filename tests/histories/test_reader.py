@@ -125,3 +125,21 @@ def test_derive_refuses_a_source_that_fails_verify(small_darkroom, tmp_path):
     with pytest.raises(ValueError, match="fails `lhf verify` .*fingerprint.*nothing derived"):
         derive_half(src, tmp_path / "half", progress=False)
     assert not (tmp_path / "half").exists()
+
+
+def test_episode_stats_are_numpys_over_each_episodes_frames(small_darkroom):
+    """LeRobot v3.0's per-episode ``stats/*`` columns, against numpy on the frames themselves."""
+    episodes = small_darkroom.episodes.data.table
+    frames = small_darkroom.frame_table([C.OBS, C.REWARD, C.EPISODE_INDEX])
+    obs = np.array(frames.column(C.OBS).to_pylist(), dtype=float).reshape(-1, 20, 2)
+    reward = frames.column(C.REWARD).to_numpy().astype(float).reshape(-1, 20)
+    assert episodes.column(C.EPISODE_INDEX).to_pylist() == list(range(len(obs)))
+    for stat, fn in (("min", np.min), ("max", np.max), ("mean", np.mean), ("std", np.std)):
+        got = np.array(episodes.column(f"stats/{C.OBS}/{stat}").to_pylist())
+        np.testing.assert_allclose(got, fn(obs, axis=1), atol=1e-12)
+        got = np.array(episodes.column(f"stats/{C.REWARD}/{stat}").to_pylist())[:, 0]
+        np.testing.assert_allclose(got, fn(reward, axis=1), atol=1e-6)
+    assert set(episodes.column(f"stats/{C.REWARD}/count").to_pylist()[0]) == {20}
+    ret = episodes.column(C.EPISODE_RETURN).to_numpy()
+    np.testing.assert_allclose(ret, reward.sum(1), rtol=1e-5)
+    assert episodes.column(C.EPISODE_TASKS).to_pylist()[0] == [small_darkroom.tasks["task"][0]]
