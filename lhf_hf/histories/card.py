@@ -171,7 +171,8 @@ def _how_collected(collect: dict, lhf: dict) -> str:
     H = collect.get("histories")
     desc = {
         "paper": f"one {collect.get('algo', '').upper()} learner per task acting in {H} parallel copies of the task "
-        "(SB3 `DummyVecEnv`); each copy's stream of transitions is one history (the reference protocol).",
+        f"({'SB3 `DummyVecEnv`' if collect.get('collector') == 'sb3' else 'stepped together by the batched collector'}); "
+        "each copy's stream of transitions is one history (the reference protocol).",
         "independent": f"{H} independently seeded {collect.get('algo', '').upper()} learners per task, one stream each.",
         "noisy": f"as `paper`, but {round(collect.get('noisy_fraction', 0.3) * 100)}% of each task's histories come "
         "from a uniform random policy on their own copies of the task (they never feed the learner's "

@@ -109,12 +109,11 @@ class HistoryDataset:
         try:
             self.info = read_json(info_file)
         except ValueError as exc:
-            raise DatasetFormatError(f"{info_file} is not valid JSON: {exc}") from None
-        if (
-            not isinstance(self.info, dict)
-            or self.info.get("codebase_version") != C.CODEBASE_VERSION
-        ):
-            got = self.info.get("codebase_version") if isinstance(self.info, dict) else None
+            raise DatasetFormatError(str(exc)) from None  # read_json's message names the file
+        if not isinstance(self.info, dict):
+            raise DatasetFormatError(f"{info_file} is damaged: not a JSON object")
+        if self.info.get("codebase_version") != C.CODEBASE_VERSION:
+            got = self.info.get("codebase_version")
             raise DatasetFormatError(
                 f"{self.root}: expected a LeRobot {C.CODEBASE_VERSION} dataset, got "
                 f"codebase_version={got!r} in {C.INFO_PATH}"
@@ -133,9 +132,11 @@ class HistoryDataset:
         try:
             self.lhf = read_json(lhf_file)
         except ValueError as exc:
-            raise DatasetFormatError(f"{lhf_file} is not valid JSON: {exc}") from None
-        if not isinstance(self.lhf, dict) or self.lhf.get("layout_version") != C.LAYOUT_VERSION:
-            got = self.lhf.get("layout_version") if isinstance(self.lhf, dict) else None
+            raise DatasetFormatError(str(exc)) from None
+        if not isinstance(self.lhf, dict):
+            raise DatasetFormatError(f"{lhf_file} is damaged: not a JSON object")
+        if self.lhf.get("layout_version") != C.LAYOUT_VERSION:
+            got = self.lhf.get("layout_version")
             raise DatasetFormatError(
                 f"{lhf_file}: lhf layout version {got!r}, this lhf_hf reads {C.LAYOUT_VERSION}"
             )

@@ -57,8 +57,10 @@ def upgrade(path: str | Path, echo=print) -> HistoryDataset:
     info = read_json(info_file)
     old = info.get("lhf") if isinstance(info, dict) else None
     if not isinstance(old, dict):
-        if (root / C.LHF_INFO_PATH).exists():
-            raise UserError(f"{root} is already in lhf's layout {C.LAYOUT_VERSION}: nothing to do")
+        if (root / C.LHF_INFO_PATH).exists():  # scripts may run it unconditionally: not an error
+            ds = HistoryDataset(root)
+            echo(f"{root} is already in lhf's layout {C.LAYOUT_VERSION}: nothing to do")
+            return ds
         raise UserError(f"{root}: {C.INFO_PATH} has no lhf section; not an lhf dataset")
     tasks = [int(t) for t in old["tasks"]]
     horizon = int(old["horizon"])

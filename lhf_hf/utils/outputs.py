@@ -184,11 +184,22 @@ def check_manifest(path: str | Path, prefix: str | None = None) -> tuple[str | N
     added since the command that wrote it ended.  No manifest: (kind or None, [a note]).
     ``prefix``: only the recorded files under it (e.g. ``meta/``), and no added-file check."""
     path = Path(path)
+    if not (path / MARKER).is_file():
+        return None, [f"{path} has no {MARKER} (written before manifests, or not by lhf_hf)"]
     try:
         marker = read_json(path / MARKER)
     except (OSError, ValueError):
-        return None, [f"{path} has no {MARKER} (written before manifests, or not by lhf_hf)"]
-    files = marker.get("files")
+        marker = None
+    files = marker.get("files") if isinstance(marker, dict) else None
+    if (
+        not isinstance(marker, dict)
+        or not isinstance(marker.get("kind"), str)
+        or not (files is None or isinstance(files, dict))
+    ):  # a damaged manifest must not read as "no manifest": nothing in the folder is vouched for
+        raise UserError(
+            f"{path / MARKER} is damaged (not the manifest an lhf command writes): the folder "
+            "cannot be checked; restore the file or run the command that wrote the folder again"
+        )
     if files is None:
         return marker.get("kind"), [f"{path}: unfinished (its command has not ended)"]
     problems = []

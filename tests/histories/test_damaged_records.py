@@ -50,12 +50,28 @@ def test_a_damaged_field_is_named(copy, rel, field, value, manifest):
 
 @pytest.mark.parametrize("top", ["[]", "null", '"text"'])
 def test_a_record_that_is_not_an_object_is_named(copy, top):
+    (copy / MARKER).unlink()  # the records' own checks, not the manifest's
     (copy / C.LHF_INFO_PATH).write_text(top)
-    with pytest.raises(DatasetFormatError, match="lhf layout version None"):
+    with pytest.raises(DatasetFormatError, match="lhf_info.json is damaged: not a JSON object"):
         load_histories(copy)
     (copy / C.INFO_PATH).write_text(top)
-    with pytest.raises(DatasetFormatError, match="expected a LeRobot v3.0 dataset"):
+    with pytest.raises(DatasetFormatError, match="info.json is damaged: not a JSON object"):
         load_histories(copy)
+
+
+@pytest.mark.parametrize(
+    "marker", ["[]", "null", "{bad", '{"filter": 3}', '{"kind": "dataset", "files": []}']
+)
+def test_a_damaged_manifest_is_named_never_read_as_absent(copy, marker, capsys):
+    from lhf_hf.verify import verify
+
+    (copy / MARKER).write_text(marker)
+    with pytest.raises(UserError, match="is damaged .not the manifest an lhf command writes"):
+        load_histories(copy)
+    with pytest.raises(UserError, match="is damaged"):
+        verify(copy)
+    assert main(["verify", str(copy)]) == 1
+    assert "Traceback" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -64,8 +64,8 @@ def test_upgrade_keeps_every_transition_and_makes_task_index_dense(old, capsys):
     assert tasks[C.TASK_INDEX].tolist() == [0, 1, 2] and tasks[C.TASK_ID].tolist() == OLD_TASKS
     assert verify(old)["problems"] == []
     # a second upgrade has nothing to do, and says so
-    assert main(["upgrade", str(old)]) == 1
-    assert "already in lhf's layout 2" in capsys.readouterr().err
+    assert main(["upgrade", str(old)]) == 0
+    assert "already in lhf's layout 2: nothing to do" in capsys.readouterr().out
 
 
 def test_an_interrupted_upgrade_is_finished_by_running_it_again(old, monkeypatch, tmp_path):
