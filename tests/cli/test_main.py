@@ -139,7 +139,7 @@ def test_a_file_missing_a_field_is_named_as_such(small_darkroom, tmp_path, capsy
                  "--objective", "ad", "--preset", "tiny", "--max-steps", "1", "--batch-size", "4",
                  "--out", str(tmp_path / "m")]) == 1  # fmt: skip
     err = capsys.readouterr().err
-    assert "has no field 'source'" in err and "Traceback" not in err
+    assert "has no 'source' object" in err and "Traceback" not in err
 
 
 @pytest.mark.parametrize("command", [["filter", "d", "--out", "s"], ["evaluate", "--model", "m", "--out", "e"],
