@@ -70,6 +70,17 @@ LHF_FIELDS = {
 }
 
 
+def _read_object(path: Path) -> dict:
+    """The JSON object in ``path``; anything else is a ``DatasetFormatError`` naming the file."""
+    try:
+        data = read_json(path)
+    except ValueError as exc:
+        raise DatasetFormatError(str(exc)) from None  # read_json's message names the file
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{path} is damaged: not a JSON object")
+    return data
+
+
 def _check_fields(record: dict, fields: dict, where: Path) -> None:
     bad = [name for name, ok in fields.items() if not ok(record.get(name))]
     if bad:
@@ -106,12 +117,7 @@ class HistoryDataset:
             raise DatasetFormatError(
                 f"{self.root} is not a learning-history dataset: {C.INFO_PATH} is missing{hint}"
             )
-        try:
-            self.info = read_json(info_file)
-        except ValueError as exc:
-            raise DatasetFormatError(str(exc)) from None  # read_json's message names the file
-        if not isinstance(self.info, dict):
-            raise DatasetFormatError(f"{info_file} is damaged: not a JSON object")
+        self.info = _read_object(info_file)
         if self.info.get("codebase_version") != C.CODEBASE_VERSION:
             got = self.info.get("codebase_version")
             raise DatasetFormatError(
@@ -129,12 +135,7 @@ class HistoryDataset:
                 f"{self.root} is a LeRobot dataset but not a learning-history dataset: "
                 f"{C.LHF_INFO_PATH} is missing"
             )
-        try:
-            self.lhf = read_json(lhf_file)
-        except ValueError as exc:
-            raise DatasetFormatError(str(exc)) from None
-        if not isinstance(self.lhf, dict):
-            raise DatasetFormatError(f"{lhf_file} is damaged: not a JSON object")
+        self.lhf = _read_object(lhf_file)
         if self.lhf.get("layout_version") != C.LAYOUT_VERSION:
             got = self.lhf.get("layout_version")
             raise DatasetFormatError(
