@@ -273,6 +273,8 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
             "tasks": data_tasks,
             "split_coverage": split_coverage(spec, data_tasks, split_seed),
             "fingerprint": ds.fingerprint,
+            # the same histories before ``lhf upgrade`` rewrote their layout (resumable across it)
+            "upgraded_from": (ds.lhf.get("upgraded") or {}).get("fingerprint"),
             "total_histories": int(arrays.num_histories),
             "total_frames": int(len(arrays.rewards)),
         },
@@ -302,6 +304,7 @@ def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> di
         },
         "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
         "dataset_fingerprint": provenance["dataset"]["fingerprint"],
+        "dataset_upgraded_from": provenance["dataset"].get("upgraded_from"),
         "selection_fingerprint": selection.get("counts_sha256"),
         # [first step, processes] of each stretch of the run (not compared by --resume: the
         # global batch is the same at any world size; recorded so a resumed run says how it ran)
@@ -327,7 +330,9 @@ def check_resume(checkpoint: str, identity: dict) -> None:
             if a != b and line not in diff:  # objective etc. are in both parts: named once
                 diff.append(line)
     for k in ("dataset_fingerprint", "selection_fingerprint"):
-        if old.get(k) != identity[k]:
+        before = identity.get("dataset_upgraded_from")  # the data's fingerprint before lhf upgrade
+        upgraded = k == "dataset_fingerprint" and before is not None and old.get(k) == before
+        if old.get(k) != identity[k] and not upgraded:
             diff.append(f"{k.split('_')[0]}: {str(old.get(k))[:16]} -> {str(identity[k])[:16]}")
     if diff:
         raise UserError(

@@ -13,10 +13,13 @@ import pytest
 
 from lhf_hf import constants as C
 from lhf_hf.cli.main import main
+from lhf_hf.configs import TrainConfig
 from lhf_hf.histories import load_histories
 from lhf_hf.histories import upgrade as upgrade_module
 from lhf_hf.histories.reader import DatasetFormatError
 from lhf_hf.histories.upgrade import upgrade
+from lhf_hf.training import train
+from lhf_hf.training.trainer import IDENTITY_FILE
 from lhf_hf.verify import verify
 
 FIXTURE = Path(__file__).with_name("fixtures") / "layout1_darkroom"
@@ -100,3 +103,36 @@ def test_upgrade_refuses_what_is_not_an_lhf_dataset(tmp_path):
     (tmp_path / C.INFO_PATH).write_text(json.dumps({"codebase_version": "v3.0"}))
     with pytest.raises(Exception, match="has no lhf section"):
         upgrade(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_training_resumes_on_its_upgraded_data(old, tmp_path):
+    """A run interrupted on layout-1 data resumes on the upgraded copy (the same histories under
+    a new fingerprint); a checkpoint of other data is still refused."""
+    before = json.loads((old / C.INFO_PATH).read_text())["lhf"]["fingerprint"]
+    assert main(["upgrade", str(old)]) == 0
+    cfg = dict(
+        dataset=str(old),
+        objective="ad",
+        preset="tiny",
+        batch_size=4,
+        context_length=20,
+        max_steps=4,
+        save_steps=2,
+        logging_steps=10,
+    )
+    full = train(TrainConfig(out=str(tmp_path / "full"), **cfg))
+    part = tmp_path / "part"
+    part.mkdir()
+    shutil.copytree(full / "checkpoint-2", part / "checkpoint-2")
+    # what the previous release wrote: the identity names the layout-1 fingerprint
+    identity_path = part / "checkpoint-2" / IDENTITY_FILE
+    identity = json.loads(identity_path.read_text())
+    identity.pop("dataset_upgraded_from")
+    identity_path.write_text(json.dumps(identity | {"dataset_fingerprint": before}))
+    resumed = train(TrainConfig(out=str(part), resume=True, **cfg))
+    assert (resumed / "model.safetensors").read_bytes() == (full / "model.safetensors").read_bytes()
+    shutil.rmtree(part / "checkpoint-4")
+    identity_path.write_text(json.dumps(identity | {"dataset_fingerprint": "0" * 64}))
+    with pytest.raises(ValueError, match="different setup \\(dataset: 0000000000000000 -> "):
+        train(TrainConfig(out=str(part), resume=True, **cfg))
