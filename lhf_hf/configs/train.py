@@ -62,10 +62,12 @@ TRAINING_ARGS_FIXED = {
 class TrainConfig:
     """How to pretrain one ICRL model.  Stored as ``train_config.json`` beside the weights.
 
-    dataset: learning-history dataset folder (``lhf collect`` / ``lhf filter --materialize``).
+    dataset: learning-history dataset (``lhf collect`` / ``lhf filter --materialize``): a folder
+        or a Hub dataset repo ``ORG/NAME[@REV]``.
     objective: ``ad``, ``dpt`` or ``dicp`` (paper appendix "Backbone ICRL Algorithms").
     out: output folder (checkpoints, final weights, card).
-    selection: optional LHF selection folder (``lhf filter``): histories are drawn with its counts.
+    selection: optional LHF selection (``lhf filter``), a folder or a Hub repo ``ORG/NAME[@REV]``:
+        histories are drawn with its counts.
     preset: backbone size: ``paper`` (4/4/32/128), ``lightweight`` (2/2/16/64) or ``tiny`` (tests).
     max_steps: optimiser steps (the reference: 50,000 at batch 512 on a GPU).
     batch_size: windows per optimiser step over all processes (split evenly across them).

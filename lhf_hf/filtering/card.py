@@ -11,20 +11,11 @@ from lhf_hf.utils.io import read_json
 from lhf_hf.utils.templates import template_path
 
 from .select import CONFIG_FILE, SCORES_FILE, SELECTION_FILE
+from .within_task import describe
 
 
 def _fmt(x) -> str:
     return "-" if x is None else f"{x:.3f}"
-
-
-def _within(w: dict | None) -> str:
-    if not w or w.get("kept_minus_rejected") is None:
-        return "-"
-    return (
-        f"{w['kept_minus_rejected']:+.3f}: kept return more in {w['tasks_kept_higher']}, less in "
-        f"{w['tasks_kept_lower']} of {w['tasks_compared']} tasks (sign test p = "
-        f"{w['sign_test_p']:.3g})"
-    )
 
 
 def render_selection_card(path: str | Path, load_path: str | None = None) -> str:
@@ -72,7 +63,7 @@ def render_selection_card(path: str | Path, load_path: str | None = None) -> str
         max_count=summary.get("max_count", "?"),
         mean_source=_fmt(summary.get("mean_return_source")),
         mean_selection=_fmt(summary.get("mean_return_selection")),
-        within=_within(summary.get("within_task")),
+        within=describe(summary.get("within_task"), long=True),
         fingerprint=str(src.get("fingerprint", "?"))[:16],
         versions=", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()),
         load_path=load_path or str(path.resolve()),

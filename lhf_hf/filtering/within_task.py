@@ -49,3 +49,18 @@ def within_task(task: np.ndarray, mean_return: np.ndarray, count: np.ndarray) ->
         "sign_test_p": sign_test(wins, losses),
         "selection_minus_source": float(np.mean(gains)),  # count-weighted, per task, then averaged
     }
+
+
+def describe(w: dict | None, long: bool = False) -> str:
+    """``within_task``'s result as a card or report cell: the difference and the tasks each way
+    (``long``: in words, with the sign test), ``-`` where no task had both kinds."""
+    if not w or w.get("kept_minus_rejected") is None:
+        return "-"
+    d, up, down, n = (w[k] for k in ("kept_minus_rejected", "tasks_kept_higher",
+                                     "tasks_kept_lower", "tasks_compared"))  # fmt: skip
+    if not long:
+        return f"{d:+.2f} ({up} / {down} of {n})"
+    return (
+        f"{d:+.3f}: kept return more in {up}, less in {down} of {n} tasks (sign test p = "
+        f"{w['sign_test_p']:.3g})"
+    )

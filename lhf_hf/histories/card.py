@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 from huggingface_hub import DatasetCard, DatasetCardData
 
 from lhf_hf import constants as C
 from lhf_hf.envs import get_spec
 from lhf_hf.utils.hub import public_source
-from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.io import read_json, write_text_atomic
 from lhf_hf.utils.templates import template_path
 
 from .plots import learning_curves, plot_learning_curve
@@ -35,10 +40,54 @@ def _fmt(x: float) -> str:
     return f"{x:.2f}"
 
 
+#: The files a card is made of (the dataset's metadata, not its frames or episodes):
+#: ``dataset_cards/`` keeps these beside each published dataset's card.
+CARD_SOURCES = (C.INFO_PATH, C.LHF_INFO_PATH, C.TASKS_PATH, C.HISTORIES_PATH)
+
+
+@dataclass(frozen=True)
+class CardInputs:
+    """What a dataset card is rendered from: ``info.json``, ``lhf_info.json`` and the tasks and
+    histories tables."""
+
+    info: dict
+    lhf: dict
+    tasks: pa.Table
+    histories: pa.Table
+
+    @property
+    def env_id(self) -> str:
+        return self.lhf["env_id"]
+
+    @classmethod
+    def of(cls, ds) -> CardInputs:
+        """Of a ``HistoryDataset``."""
+        return cls(ds.info, ds.lhf, ds.tasks.data.table, ds.histories.data.table)
+
+    @classmethod
+    def read(cls, root: str | Path) -> CardInputs:
+        """From the ``CARD_SOURCES`` files under ``root`` (a dataset, or a copy of its metadata)."""
+        root = Path(root)
+        info, lhf, tasks, hist = (root / rel for rel in CARD_SOURCES)
+        return cls(read_json(info), read_json(lhf), pq.read_table(tasks), pq.read_table(hist))
+
+
 def render_card(ds, load_path: str | None = None) -> str:
     """Render the card text of dataset ``ds`` (a ``HistoryDataset``)."""
-    lhf, info = ds.lhf, ds.info
-    spec = get_spec(ds.env_id)
+    # a local card names its folder absolute, as the selection and model cards do: it is read
+    # from anywhere, and a relative path would be relative to where the collection ran
+    return render_card_of(CardInputs.of(ds), load_path, local_root=ds.root.resolve())
+
+
+def render_card_of(
+    inputs: CardInputs, load_path: str | None = None, local_root: Path | None = None
+) -> str:
+    """The card text from its inputs; its snippets load the data from ``load_path`` (a repo id),
+    else from the folder ``local_root``."""
+    if load_path is None and local_root is None:
+        raise ValueError("render_card_of needs a load_path or the dataset's local_root")
+    lhf, info = inputs.lhf, inputs.info
+    spec = get_spec(inputs.env_id)
     derived = lhf.get("derived_from")
     # a derived dataset (a materialised selection) was collected as its source was
     collect = lhf.get("collect") or (derived or {}).get("source_collect") or {}
@@ -61,9 +110,9 @@ def render_card(ds, load_path: str | None = None) -> str:
     )
     card_data = DatasetCardData(
         license="apache-2.0",
-        pretty_name=f"{ds.env_id} learning histories ({', '.join(_kind(collect, derived, algo))})",
+        pretty_name=f"{inputs.env_id} learning histories ({', '.join(_kind(collect, derived, algo))})",
         task_categories=["reinforcement-learning"],
-        tags=["LeRobot", "lhf", "in-context-rl", "learning-histories", ds.env_id],
+        tags=["LeRobot", "lhf", "in-context-rl", "learning-histories", inputs.env_id],
         size_categories=[size_cat],
         configs=[
             {"config_name": "default", "data_files": "data/*/*.parquet"},
@@ -71,10 +120,10 @@ def render_card(ds, load_path: str | None = None) -> str:
             {"config_name": "histories", "data_files": "meta/histories/*/*.parquet"},
         ],
     )
-    tasks = ds.tasks.to_pandas()
-    hist = ds.histories
-    returns = hist.data.column(C.RETURNS).to_pylist()
-    task_of = hist.data.column(C.TASK_ID).to_numpy()
+    tasks = inputs.tasks.to_pandas()
+    hist = inputs.histories
+    returns = hist.column(C.RETURNS).to_pylist()
+    task_of = hist.column(C.TASK_ID).to_numpy()
     optimal = spec.optimal_returns() if spec.optimal_returns is not None else None
     rows = []
     for t, split in zip(tasks[C.TASK_ID], tasks[C.SPLIT], strict=True):
@@ -93,7 +142,7 @@ def render_card(ds, load_path: str | None = None) -> str:
     if len(rows) > 40:
         note = f" The first 40 of {len(rows)} tasks are shown; the histories table has them all."
         rows = rows[:40]
-    kinds = hist.data.column(C.LEARNER).to_pylist()
+    kinds = hist.column(C.LEARNER).to_pylist()
     # totals over the dataset: a selection changes the mix task by task
     learner_counts = ", ".join(f"{k} {kinds.count(k)}" for k in dict.fromkeys(kinds))
     schema = [
@@ -105,7 +154,7 @@ def render_card(ds, load_path: str | None = None) -> str:
         }
         for name, f in info["features"].items()
     ]
-    settings = [(k, v) for k, v in collect.items() if k not in ("tasks",)]
+    settings = _settings(collect)
     how = (
         _how_collected(collect, lhf)
         if collect
@@ -125,7 +174,7 @@ def render_card(ds, load_path: str | None = None) -> str:
         template_path=str(template_path("histories_card.md")),
         pretty_name=card_data.pretty_name,
         algo_name=algo,
-        env_id=ds.env_id,
+        env_id=inputs.env_id,
         env_description=spec.description,
         derived_note=derived_note,
         total_tasks=n_tasks,
@@ -146,14 +195,26 @@ def render_card(ds, load_path: str | None = None) -> str:
         schema=schema,
         task_rows=rows,
         task_table_note=note,
-        load_path=load_path or str(ds.root),
+        load_path=load_path or str(local_root),
         lerobot_line=(
             f'ds = LeRobotDataset("{load_path}")'
             if load_path
-            else f'ds = LeRobotDataset("local/{ds.root.name}", root="{ds.root}")'
+            else f'ds = LeRobotDataset("local/{local_root.name}", root="{local_root}")'
         ),
     )
     return str(card)
+
+
+def _settings(collect: dict) -> list[tuple[str, object]]:
+    """The collection settings that made the data: the task list is in the tasks table, and the
+    settings of the algorithm, protocol and collector that did not run are left out."""
+    algo, protocol = collect.get("algo"), collect.get("protocol")
+    unused = {"tasks", *({"ppo", "sac"} - {algo})}
+    if protocol != "noisy":
+        unused.add("noisy_fraction")
+    if algo != "ppo" or collect.get("collector") != "batched":
+        unused.add("ppo_backend")  # only the batched collector's PPO has backends
+    return [(k, v) for k, v in collect.items() if k not in unused]
 
 
 def _kind(collect: dict, derived: dict | None, algo: str) -> list[str]:
@@ -185,17 +246,22 @@ def _how_collected(collect: dict, lhf: dict) -> str:
     )
 
 
-def write_card(ds, load_path: str | None = None) -> None:
-    """Write the learning-curve PNG and README.md of ``ds``."""
-    spec = get_spec(ds.env_id)
+def plot_card_curve(inputs: CardInputs, path: Path) -> None:
+    """The card's learning-curve PNG: the mean return per episode over all histories."""
+    spec = get_spec(inputs.env_id)
     optimal = None
     if spec.optimal_returns is not None:
-        tasks = ds.tasks.data.column(C.TASK_ID).to_numpy()
+        tasks = inputs.tasks.column(C.TASK_ID).to_numpy()
         optimal = float(spec.optimal_returns()[tasks].mean())
     plot_learning_curve(
-        learning_curves(ds.histories.data.to_pydict()),
-        ds.root / C.CURVE_PATH,
-        title=f"{ds.env_id}: return per episode over {ds.lhf['total_histories']} histories",
+        learning_curves(inputs.histories.to_pydict()),
+        path,
+        title=f"{inputs.env_id}: return per episode over {inputs.lhf['total_histories']} histories",
         optimal=optimal,
     )
+
+
+def write_card(ds, load_path: str | None = None) -> None:
+    """Write the learning-curve PNG and README.md of ``ds``."""
+    plot_card_curve(CardInputs.of(ds), ds.root / C.CURVE_PATH)
     write_text_atomic(render_card(ds, load_path), ds.root / C.CARD_PATH)

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lhf_hf.filtering.within_task import describe
+
 from .experiment import Experiment, shadows_shipped
 
 #: A sweep's figure per env: every value's LHF curves beside the baseline, one panel per backbone.
@@ -101,15 +103,6 @@ def _columns(exp: Experiment) -> list[str]:
 
 def _label(cell: dict) -> str:
     return cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
-
-
-def _within(w: dict | None) -> str:
-    if not w or w.get("kept_minus_rejected") is None:
-        return "-"
-    return (
-        f"{w['kept_minus_rejected']:+.2f} ({w['tasks_kept_higher']} / {w['tasks_kept_lower']} "
-        f"of {w['tasks_compared']})"
-    )
 
 
 def _num(x) -> str:
@@ -211,7 +204,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
             f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
             f"| {_num(s['mean_return_source'])} | {_num(s['mean_return_selected_unique'])} "
             f"| {_num(s['mean_return_rejected'])} | {_num(s['mean_return_selection'])} "
-            f"| {_within(s.get('within_task'))} |"
+            f"| {describe(s.get('within_task'))} |"
             for s in selections
         ]
     if other := summary.get("other_data"):

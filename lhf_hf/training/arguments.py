@@ -129,9 +129,23 @@ def training_arguments(cfg: TrainConfig, world: int, progress: bool) -> Training
     if not cfg.training_args:
         return TrainingArguments(**own)
     try:  # the defaults lhf chose (the scheduler, the loader's workers, ...) may be overridden
-        return TrainingArguments(**{**own, **cfg.training_args})
+        args = TrainingArguments(**{**own, **cfg.training_args})
     except (ValueError, TypeError) as exc:
         raise refused(cfg, "TrainingArguments", exc) from None
+    _check_accepted(cfg, args)
+    return args
+
+
+def _check_accepted(cfg: TrainConfig, args: TrainingArguments) -> None:
+    """What ``TrainingArguments`` accepts but the run would refuse later, or ignore: said before
+    anything is written, as what ``TrainingArguments`` refuses is."""
+    if args.dataloader_num_workers < 0:  # torch's DataLoader refuses it at the first step
+        raise refused(cfg, "lhf", ValueError("dataloader_num_workers must be 0 or more"))
+    if (args.fp16 or args.fp16_full_eval) and not torch.cuda.is_available():
+        # fp16 mixed precision is a CUDA feature: on a CPU the run would be float32 all along
+        raise refused(
+            cfg, "lhf", ValueError("fp16 needs a CUDA GPU; on a CPU use bf16=true or neither")
+        )
 
 
 def refused(cfg: TrainConfig, who: str, exc: Exception) -> UserError:

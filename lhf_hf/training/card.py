@@ -201,13 +201,22 @@ def render_model_card(
         # the template's optimiser row ends with the clip: the other Trainer arguments follow it
         max_grad_norm=f"{train['max_grad_norm']}{_other_arguments(train)}",
         seed=train["seed"],
-        final_loss=(
-            f"{provenance['final_loss']:.4f}" if provenance.get("final_loss") is not None else "-"
-        ),
+        final_loss=_final_loss(provenance),
         runtime=provenance.get("train_runtime_s", "-"),
         versions=", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()),
         eval_section=eval_section(evaluations or []),
     ).content
+
+
+def _final_loss(provenance: dict) -> str:
+    """The last logged loss; a run shorter than its logging interval logs none, and then the
+    card gives Trainer's mean loss over the run (``train_loss``), saying so."""
+    if provenance.get("final_loss") is not None:
+        return f"{provenance['final_loss']:.4f}"
+    mean = (provenance.get("metrics") or {}).get("train_loss")
+    every = provenance.get("train", {}).get("logging_steps")
+    why = f"none logged: --logging-steps {every} is past the run's end" if every else "none logged"
+    return f"- ({why}; mean over the run {mean:.4f})" if mean is not None else f"- ({why})"
 
 
 def _rollout_tasks(config, env_id: str, split_seed: int) -> tuple[str, str, list[str]]:

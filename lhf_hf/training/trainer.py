@@ -37,6 +37,7 @@ from lhf_hf.utils.io import (
 )
 from lhf_hf.utils.launcher import end_ranks
 from lhf_hf.utils.outputs import output_folder
+from lhf_hf.utils.progress import library_bars
 from lhf_hf.utils.versions import library_versions
 
 from .arguments import refused, resolve, training_arguments
@@ -130,13 +131,16 @@ class _PushCheckpoints(TrainerCallback):
         folder = Path(args.output_dir) / f"checkpoint-{state.global_step}"
         files = [name for name in self.FILES if (folder / name).is_file()]
         public = public_contents(folder, files)  # as `lhf push` uploads them: no local paths
-        HfApi().create_commit(
-            repo_id=args.hub_model_id,
-            operations=[CommitOperationAdd(f, public.get(f, str(folder / f))) for f in files],
-            commit_message=f"Training in progress, step {state.global_step}",
-            token=args.hub_token,
-            revision=args.hub_revision,
-        )
+        # Trainer's saving turns huggingface_hub's bars back on (transformers'
+        # suppress_progress_bars re-enables them on exit): --no-progress is applied again here
+        with library_bars(not args.disable_tqdm):
+            HfApi().create_commit(
+                repo_id=args.hub_model_id,
+                operations=[CommitOperationAdd(f, public.get(f, str(folder / f))) for f in files],
+                commit_message=f"Training in progress, step {state.global_step}",
+                token=args.hub_token,
+                revision=args.hub_revision,
+            )
 
 
 #: What Trainer and ``WindowTrainer._save`` write into a checkpoint: the only files rotation deletes.
@@ -426,12 +430,13 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bo
     if cfg.push_to_hub and int(os.environ.get("RANK", "0")) == 0:
         from .artifact import CheckpointArtifact  # deferred: artifact imports this module
 
-        CheckpointArtifact.push(
-            out,
-            cfg.push_to_hub,
-            private=cfg.hub_private,
-            commit_message=f"lhf train: final model, step {step}",
-        )
+        with library_bars(progress):  # as in _PushCheckpoints: Trainer turned the bars back on
+            CheckpointArtifact.push(
+                out,
+                cfg.push_to_hub,
+                private=cfg.hub_private,
+                commit_message=f"lhf train: final model, step {step}",
+            )
     return out
 
 

@@ -137,6 +137,13 @@ def download(ref: HubRef, repo_type: str) -> Path:
     except GatedRepoError:
         raise HubError(f"{where} is gated: request access on the Hub, then log in") from None
     except RepositoryNotFoundError:
+        # some Hub servers (mirrors) answer a missing revision as a missing repo: asked again
+        # without the revision, a repo that exists says which it was
+        refs = _refs(ref.repo_id, repo_type) if ref.revision is not None else None
+        if refs is not None:
+            raise HubError(
+                f"{where}: revision {ref.revision!r} does not exist (it has {', '.join(refs)})"
+            ) from None
         raise HubError(
             f"{where} does not exist (or is private: log in with `hf auth login` or set HF_TOKEN)"
         ) from None
@@ -146,6 +153,32 @@ def download(ref: HubRef, repo_type: str) -> Path:
         ) from None
     except HfHubHTTPError as exc:
         raise HubError(f"{where}: {exc}") from None
+
+
+def _refs(repo_id: str, repo_type: str) -> list[str] | None:
+    """The branches and tags of a repo, or None where it cannot be listed (absent, private, the
+    Hub unreachable now: the first error then stands as it was)."""
+    try:
+        refs = HfApi().list_repo_refs(repo_id, repo_type=repo_type)
+    except Exception:  # noqa: BLE001
+        return None
+    return [r.name for r in (*refs.branches, *refs.tags)]
+
+
+def _error_text(exc: BaseException) -> str:
+    """An exception and its cause in one text, the cause only where it adds words (the Hub's
+    HTTP errors repeat their cause's message, a failed connection its socket error)."""
+    text = str(exc).strip()
+    cause = str(exc.__cause__).strip() if exc.__cause__ is not None else ""
+    if cause and cause not in text:
+        text = f"{text}; {cause}"
+    unauthorized = "401" in text.split("\n", 1)[0]
+    # one line: httpx's pointer to the status code's documentation says nothing the code does not
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    text = " ".join(line for line in lines if not line.startswith("For more information check"))
+    if unauthorized:
+        text += " (log in with `hf auth login`, set HF_TOKEN, or pass --token)"
+    return text
 
 
 def source_of(spec: str | Path, path: Path) -> str:
@@ -360,7 +393,7 @@ def push_folder(
         )
     except Exception as exc:  # noqa: BLE001 (httpx's ConnectError etc.: every failure is one line)
         # Before the commit call returns, the repo is unchanged: the Hub applies a commit whole.
-        cause = f"{exc}; {exc.__cause__}" if exc.__cause__ else str(exc)
+        cause = _error_text(exc)
         raise HubError(
             f"push of {path} to {repo_type} repo {repo_id} on {endpoint()} failed at '{step}' "
             f"(nothing was committed): {cause}"

@@ -51,6 +51,13 @@ def test_card_and_plot(small_darkroom):
         "| `observation.state` | int64 | (2,) |" in text and "ppo 21, random 9" in text
     )  # 3 tasks x (7 PPO + 3 random)
     assert "n_steps" in text and "stable-baselines3" in text
+    # snippets name the folder absolute, as the selection and model cards do
+    root = small_darkroom.root.resolve()
+    assert f'load_histories("{root}")' in text and f'root="{root}")' in text
+    # the settings table: the algorithm and protocol that ran, not the others' defaults
+    settings = text.split("| setting | value |")[1].split("Library versions")[0]
+    assert "| ppo |" in settings and "| noisy_fraction | `0.3` |" in settings
+    assert "| sac |" not in settings and "ppo_backend" not in settings  # SB3 PPO: no backends
     png = (small_darkroom.root / C.CURVE_PATH).read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
 
@@ -143,3 +150,21 @@ def test_episode_stats_are_numpys_over_each_episodes_frames(small_darkroom):
     ret = episodes.column(C.EPISODE_RETURN).to_numpy()
     np.testing.assert_allclose(ret, reward.sum(1), rtol=1e-5)
     assert episodes.column(C.EPISODE_TASKS).to_pylist()[0] == [small_darkroom.tasks["task"][0]]
+
+
+def test_card_from_its_metadata_alone(learned_darkroom, tmp_path):
+    """``dataset_cards/`` renders cards from the metadata files alone: the same text."""
+    import shutil as sh
+
+    from lhf_hf.histories.card import CARD_SOURCES, CardInputs, render_card, render_card_of
+
+    for rel in CARD_SOURCES:
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        sh.copy(learned_darkroom.root / rel, tmp_path / rel)
+    alone = render_card_of(CardInputs.read(tmp_path), "org/name")
+    assert alone == render_card(learned_darkroom, "org/name")
+    assert 'load_dataset("org/name", split="train")' in alone and str(tmp_path) not in alone
+    settings = alone.split("| setting | value |")[1].split("Library versions")[0]
+    assert "| ppo_backend |" in settings and "noisy_fraction" not in settings
+    with pytest.raises(ValueError, match="needs a load_path"):
+        render_card_of(CardInputs.read(tmp_path))

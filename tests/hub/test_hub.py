@@ -195,7 +195,9 @@ def test_selection_and_checkpoint_round_trip(
         for f in _git(git_repo, "ls-files").splitlines():
             if f.endswith((".md", ".json")):
                 text = (git_repo / f).read_text()
-                assert str(checkpoint) not in text and str(small_darkroom_batched.root) not in text, f
+                assert (
+                    str(checkpoint) not in text and str(small_darkroom_batched.root) not in text
+                ), f
 
     load = f"""
 import json
@@ -251,13 +253,14 @@ def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_pat
     from lhf_hf.modeling import MODEL_CODE_FILES
 
     repo = "lhf-test/trained-while-pushing"
-    _ok(
-        hub_client(
-            fake_hub.endpoint, CLI, "train", "--dataset", str(small_darkroom_batched.root),
-            "--objective", "dicp", "--preset", "tiny", "--max-steps", "4", "--save-steps", "2",
-            "--batch-size", "4", "--out", "run", "--push-to-hub", repo,
-        )
+    proc = hub_client(
+        fake_hub.endpoint, CLI, "train", "--dataset", str(small_darkroom_batched.root),
+        "--objective", "dicp", "--preset", "tiny", "--max-steps", "4", "--save-steps", "2",
+        "--batch-size", "4", "--out", "run", "--push-to-hub", repo, "--no-progress",
     )  # fmt: skip
+    _ok(proc)
+    # --no-progress holds for the uploads too (Trainer's saving turns the Hub's bars back on)
+    assert "%|" not in proc.stderr and "it/s" not in proc.stderr, proc.stderr[-2000:]
     git_repo = fake_hub.repo_path("models", *repo.split("/"))
     log = _git(git_repo, "log", "--format=%s").splitlines()
     assert any(s.startswith("Training in progress, step 2") for s in log)  # Trainer, every save
@@ -377,14 +380,17 @@ def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
         hub_client(fake_hub.endpoint, CLI, "push", "empty", "--repo-id", "lhf-test/x"),
         "is not an lhf artifact",
     )
-    # No token: the server refuses, the push says where it failed and that nothing was committed.
-    _fails(
+    # No token: the server refuses, the push says where it failed and that nothing was committed,
+    # in one line that says the server's reason once and how to log in.
+    err = _fails(
         hub_client(
             fake_hub.endpoint, CLI, "push", ds, "--repo-id", "lhf-test/no-token", token=None
         ),
         "failed at 'create the repo'",
         "nothing was committed",
+        "(log in with `hf auth login`, set HF_TOKEN, or pass --token)",
     )
+    assert err.count("Invalid credentials") == 1 and len(err.strip().splitlines()) == 1, err
     assert not fake_hub.repo_path("datasets", "lhf-test", "no-token").exists()
     # The real Hub without a token: refused before any request (the guard would exit 97).
     _fails(
@@ -423,6 +429,11 @@ def test_load_errors(fake_hub, olah, hub_client):
         "model repo lhf-test/no-such-model",
     )
     _fails(hub_client(olah, CLI, "filter", "no/such/thing", "--out", "s"), "no such local folder")
+    # olah answers a missing revision as a missing repo: the repo is asked for again, and named
+    _fails(
+        hub_client(olah, CLI, "filter", "lhf-test/plain-csv@no-such-rev", "--out", "s"),
+        "revision 'no-such-rev' does not exist (it has main)",
+    )
 
 
 def test_repo_ref_parsing():
@@ -524,3 +535,4 @@ def test_an_unreachable_hub_is_one_line(small_darkroom_batched, hub_client):
                       "--repo-id", "lhf-test/unreachable")  # fmt: skip
     err = _fails(proc, "failed at 'create the repo'", "nothing was committed")
     assert "Traceback" not in err
+    assert err.count("Connection refused") <= 1, err  # the socket error once, not with its cause

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 from transformers import TrainerCallback
 from transformers.integrations import integration_utils
 
@@ -170,3 +171,22 @@ def test_a_run_reports_and_records_its_arguments(small_darkroom, tmp_path, monke
     )
     with pytest.raises(UserError, match=r"training_args: \{'adam_epsilon': 1e-06\} -> "):
         train(again)
+
+
+@pytest.mark.parametrize(
+    "given, match",
+    [
+        ({"dataloader_num_workers": "-1"}, "dataloader_num_workers must be 0 or more"),
+        ({"fp16": "true"}, "fp16 needs a CUDA GPU; on a CPU use bf16=true"),
+    ],
+)
+def test_what_trainingarguments_accepts_but_a_run_cannot_use_is_refused_first(
+    small_darkroom, tmp_path, given, match
+):
+    if "fp16" in given and torch.cuda.is_available():
+        pytest.skip("fp16 runs on a GPU")
+    out = tmp_path / "m"
+    cfg = TrainConfig(dataset=str(small_darkroom.root), out=str(out), training_args=given, **BASE)
+    with pytest.raises(UserError, match=f"lhf refused --training-arg .*: {match}"):
+        train(cfg)
+    assert not out.exists()

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import pytest
 
 from lhf_hf.envs import split_part
-from lhf_hf.training.card import _rollout_tasks
+from lhf_hf.training.card import _final_loss, _rollout_tasks
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -88,3 +88,13 @@ def test_the_card_rolls_out_on_the_test_tasks_the_model_did_not_train_on():
     assert flags == ["--tasks", ",".join(map(str, test[1:]))]
     assert tasks(test)[0] == test and tasks(test)[2] == ["--allow-seen"]  # reported as seen
     assert tasks(None)[0] == test and tasks(None)[2] == ["--allow-seen"]  # not recorded
+
+
+def test_a_run_shorter_than_its_logging_interval_says_why_it_has_no_final_loss():
+    logged = {"final_loss": 1.23456, "metrics": {"train_loss": 2.0}}
+    assert _final_loss(logged) == "1.2346"
+    short = {"final_loss": None, "metrics": {"train_loss": 1.5}, "train": {"logging_steps": 10}}
+    assert _final_loss(short) == (
+        "- (none logged: --logging-steps 10 is past the run's end; mean over the run 1.5000)"
+    )
+    assert _final_loss({"final_loss": None}) == "- (none logged)"
