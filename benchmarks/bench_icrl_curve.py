@@ -17,7 +17,8 @@ plot's error bars are then the spread over trained models, otherwise over evalua
 the same settings; ``--train-seeds`` may add models) and trains only the missing ones.  Without it
 an existing ``curve.json`` is an error, never overwritten.
 Then every checkpoint
-is evaluated in context on the unseen goals of the dataset's split (``--episodes`` episodes from an
+is evaluated in context on the validation goals of the dataset's split (``--tasks test
+--report-on-test``: its test goals, to report a choice already made; test goals never choose one) (``--episodes`` episodes from an
 empty context, one rollout per seed, each model with its own context semantics) and the mean return
 of the last 10 episodes is plotted against the training minutes, with the published levels (DICP
 paper, Darkroom: AD ~12.5, DICP ~15; issue 23's DPT target 14) as lines.  With ``--plan`` every DICP
@@ -42,9 +43,8 @@ from transformers import TrainerCallback
 
 from lhf_hf.configs import TrainConfig
 from lhf_hf.envs import get_spec
-from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.rollout import rollout
-from lhf_hf.evaluation.seen import check_unseen
+from lhf_hf.evaluation.seen import TUNING_PARTS, check_unseen, tuning_tasks
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.histories.reader import load_histories
 from lhf_hf.modeling import load_model
@@ -165,6 +165,11 @@ def main() -> None:
                    help="also evaluate DICP checkpoints with planning")  # fmt: skip
     p.add_argument("--plan-gate", default="always", choices=["always", "reward_seen"],
                    help="planning only for tasks whose context holds a reward (EvalConfig.plan_gate)")  # fmt: skip
+    p.add_argument("--tasks", default="validation", choices=TUNING_PARTS,
+                   help="the goals measured: validation (train on `lhf collect --tasks fit` "
+                   "data), or test with --report-on-test")
+    p.add_argument("--report-on-test", action="store_true",
+                   help="allow --tasks test: reporting a choice already made, not making one")
     p.add_argument("--out", default="results/train/icrl_curve")
     p.add_argument("--work", default="runs/bench-icrl-curve")
     p.add_argument("--resume", action="store_true",
@@ -182,7 +187,9 @@ def main() -> None:
             "train the missing ones, or another --out"
         )
     try:  # before any training: a model is never trained only to find it cannot be written
-        env_id = load_histories(args.dataset).env_id
+        data = load_histories(args.dataset)
+        env_id = data.env_id
+        tuning_tasks(env_id, args.tasks, int(data.lhf["split_seed"]), args.report_on_test)
         for objective in args.objectives:  # the TrainConfig validates preset, lr, batch size
             _train_config(args, objective, 0, out="unused")
         _check_work(Path(args.work), args.dataset)
@@ -307,8 +314,8 @@ def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
         raise
     split_seed = int(provenance["dataset"]["split_seed"])
     env_id = provenance["dataset"]["env_id"]
-    tasks = resolve_tasks(env_id, "test", split_seed)
-    # a dataset with test tasks in it would measure trained goals: refused, as by lhf evaluate
+    tasks = tuning_tasks(env_id, args.tasks, split_seed, args.report_on_test)
+    # a dataset holding these tasks would measure trained goals: refused, as by lhf evaluate
     check_unseen(get_spec(env_id), trainer.model.config, tasks, split_seed, False, str(work))
     points = []
     for step, trained_s in clock.marks:

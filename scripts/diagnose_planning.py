@@ -5,8 +5,9 @@ next-state heads at depth 0, on the tokens exactly as the planner builds them.
     python scripts/diagnose_planning.py --model runs/dicp-cpu [--episodes 40] [--seeds 0 1]
         [--json results/planning/diagnose.json] [--parts runs heads depth false-positives]
 
-Darkroom-family gridworlds without a key (the true dynamics need the goal alone).  The unseen goals
-of the model's split; each seed is a separate rollout.  Head accuracy is measured during the
+Darkroom-family gridworlds without a key (the true dynamics need the goal alone).  The validation
+goals of the model's split (``--tasks test --report-on-test``: its test goals, to report a choice
+already made; a diagnosis that chooses a setting looks at validation goals only); each seed is a separate rollout.  Head accuracy is measured during the
 model-free rollout, at every step with a full context: for each of the 5 actions from the current
 state, the reward head's prediction (thresholded at 0.5) and the next-state head's prediction
 against the true ones, split by whether the true reward is 1 (the goal cell) or 0, and by episode.
@@ -29,10 +30,9 @@ import torch
 
 from lhf_hf.envs import get_spec
 from lhf_hf.evaluation.context import Context
-from lhf_hf.evaluation.evaluate import resolve_tasks
 from lhf_hf.evaluation.planning import beam_search
 from lhf_hf.evaluation.rollout import rollout, sample_actions
-from lhf_hf.evaluation.seen import check_unseen
+from lhf_hf.evaluation.seen import TUNING_PARTS, check_unseen, tuning_tasks
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.evaluation.tokens import StepTokens
 from lhf_hf.modeling import load_model
@@ -222,6 +222,11 @@ def main() -> None:
     p.add_argument("--split-seed", type=int, default=None,
                    help="default: the split of the model's training dataset (as lhf evaluate)")  # fmt: skip
     p.add_argument("--json", default=None)
+    p.add_argument("--tasks", default="validation", choices=TUNING_PARTS,
+                   help="the goals measured: validation (a model trained on `lhf collect --tasks "
+                   "fit` data), or test with --report-on-test")
+    p.add_argument("--report-on-test", action="store_true",
+                   help="allow --tasks test: reporting a choice already made, not making one")
     p.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                    help="what to measure (default: all)")  # fmt: skip
     args = p.parse_args()
@@ -242,7 +247,7 @@ def run(args) -> None:
     if split_seed is None:  # the unseen goals of the model's own split, as lhf evaluate
         split_seed = int((provenance.get("dataset") or {}).get("split_seed", 0))
     args.split_seed = split_seed
-    tasks = resolve_tasks(env, "test", split_seed)
+    tasks = tuning_tasks(env, args.tasks, split_seed, args.report_on_test)
     check_unseen(get_spec(env), model.config, tasks, split_seed, False, args.model)  # as evaluate
     optimal = float(get_spec(env).optimal_returns()[tasks].mean())
     model_id = str(Path(args.model).resolve())

@@ -8,7 +8,8 @@ goal is found in every late episode or in none), so one rollout seed compares pl
 policy on luck as much as on skill.  This evaluates the same checkpoint without planning and with
 planning at each ``--horizons`` depth (the model's ``plan_horizon`` overridden), each on the same
 seeds (the same environments and streams), and writes the whole-curve mean and the per-goal means of
-every rollout.  Default split: the model's training dataset's (as ``lhf evaluate``).
+every rollout.  Default split: the model's training dataset's (as ``lhf evaluate``); its validation
+goals (``--tasks test --report-on-test``: its test goals, to report a choice already made).
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ import json
 import numpy as np
 
 from lhf_hf.envs import get_spec
-from lhf_hf.evaluation.evaluate import resolve_tasks
+from lhf_hf.errors import UserError
 from lhf_hf.evaluation.rollout import rollout
-from lhf_hf.evaluation.seen import check_unseen
+from lhf_hf.evaluation.seen import TUNING_PARTS, check_unseen, tuning_tasks
 from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.modeling import load_model
 from lhf_hf.utils.io import write_json_atomic
@@ -37,6 +38,11 @@ def main() -> None:
     p.add_argument("--horizons", type=int, nargs="+", default=[1, 8])
     p.add_argument("--split-seed", type=int, default=None)
     p.add_argument("--json", default=None)
+    p.add_argument("--tasks", default="validation", choices=TUNING_PARTS,
+                   help="the goals measured: validation (a model trained on `lhf collect --tasks "
+                   "fit` data), or test with --report-on-test")
+    p.add_argument("--report-on-test", action="store_true",
+                   help="allow --tasks test: reporting a choice already made, not making one")
     a = p.parse_args()
     model = load_model(a.model)
     if model.config.objective != "dicp":
@@ -47,7 +53,10 @@ def main() -> None:
     if split is None:
         with open(f"{a.model}/train_config.json") as f:
             split = int(json.load(f)["dataset"]["split_seed"])
-    tasks = resolve_tasks(model.config.env_id, "test", split)
+    try:
+        tasks = tuning_tasks(model.config.env_id, a.tasks, split, a.report_on_test)
+    except UserError as exc:
+        raise SystemExit(f"error: {exc}") from None
     check_unseen(get_spec(model.config.env_id), model.config, tasks, split, False, a.model)
     out = {"model": a.model, "split_seed": split, "tasks": tasks, "episodes": a.episodes}
     arms = [("no plan", False, model.config.plan_horizon)]

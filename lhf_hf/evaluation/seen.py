@@ -9,7 +9,7 @@ environments"); a return on a task the model trained on measures memory, not in-
 
 from __future__ import annotations
 
-from lhf_hf.envs.registry import EnvSpec
+from lhf_hf.envs.registry import EnvSpec, split_part
 from lhf_hf.errors import UserError
 
 
@@ -81,3 +81,24 @@ def seen_label(seen: list[int] | None, num_tasks: int) -> str:
     if len(seen) == num_tasks:
         return "seen tasks"
     return f"seen tasks ({len(seen)} of {num_tasks})"
+
+
+#: The goals a tuning tool (a sweep, a benchmark that picks a setting, a diagnosis) measures on:
+#: validation goals, drawn from the train split; test goals are for reporting only.
+TUNING_PARTS = ("validation", "test")
+
+
+def tuning_tasks(env_id: str, part: str, split_seed: int, report_on_test: bool) -> list[int]:
+    """The goals of ``part`` of split ``split_seed`` for a tuning tool.  ``test`` only with
+    ``report_on_test``: a choice made by looking at test goals would be reported on the same goals
+    (a model tuned this way trains on ``lhf collect --tasks fit`` data, so its validation goals
+    stay unseen)."""
+    if part not in TUNING_PARTS:
+        raise UserError(f"--tasks {part!r}: a tuning tool measures on one of {TUNING_PARTS}")
+    if part == "test" and not report_on_test:
+        raise UserError(
+            "--tasks test: test goals are for reporting only, never for choosing a setting; "
+            "measure on --tasks validation (train on `lhf collect --tasks fit` data), or pass "
+            "--report-on-test to report a choice already made"
+        )
+    return split_part(env_id, part, split_seed)

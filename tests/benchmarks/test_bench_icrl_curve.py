@@ -120,4 +120,14 @@ def test_data_holding_test_goals_is_refused(bench, monkeypatch, small_darkroom_b
 
     with pytest.raises(SeenTasksError, match=r"\(62\)"):
         _run(bench, monkeypatch, "--dataset", small_darkroom_batched.root, "--steps", "2",
-             "--work", tmp_path / "work", "--out", tmp_path / "out.json", *TINY)  # fmt: skip
+             "--work", tmp_path / "work", "--out", tmp_path / "out.json", *TINY,
+             "--tasks", "test", "--report-on-test")  # fmt: skip
+
+
+def test_test_goals_are_measured_only_to_report(bench, monkeypatch, data, tmp_path):
+    """A tuning tool measures on validation goals; test goals only with --report-on-test,
+    refused before any work."""
+    with pytest.raises(SystemExit, match="test goals are for reporting only"):
+        _run(bench, monkeypatch, "--dataset", data, "--steps", "2", "--tasks", "test",
+             "--work", tmp_path / "work", "--out", tmp_path / "out", *TINY)  # fmt: skip
+    assert not (tmp_path / "work").exists() and not (tmp_path / "out").exists()

@@ -223,3 +223,25 @@ def test_the_seen_hint_names_the_fix_for_validation_tasks(tmp_path):
     model = _Config(task_split("darkroom", 0)[0], 0)  # trained on --tasks train
     with pytest.raises(SeenTasksError, match="train on data collected with --tasks fit"):
         check_unseen(dark, model, validation, 0, False, "m")
+
+
+def test_tuning_tools_measure_on_validation_goals_and_test_goals_only_to_report():
+    from lhf_hf.errors import UserError
+    from lhf_hf.evaluation.seen import tuning_tasks
+
+    # split 0 of Darkroom, by hand (tests/envs/test_registry.py): 8 validation goals
+    assert sorted(tuning_tasks("darkroom", "validation", 0, False)) == [
+        12,
+        17,
+        27,
+        36,
+        45,
+        61,
+        64,
+        68,
+    ]
+    with pytest.raises(UserError, match="test goals are for reporting only.*--report-on-test"):
+        tuning_tasks("darkroom", "test", 0, False)
+    assert tuning_tasks("darkroom", "test", 0, True) == task_split("darkroom", 0)[1]
+    with pytest.raises(UserError, match="one of \\('validation', 'test'\\)"):
+        tuning_tasks("darkroom", "train", 0, True)
