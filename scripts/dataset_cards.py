@@ -34,7 +34,8 @@ from lhf_hf.filtering.run import run_filter
 from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.card import CARD_SOURCES, CardInputs, plot_card_curve, render_card_of
 from lhf_hf.reproduce.experiment import load_experiment
-from lhf_hf.utils.io import write_text_atomic
+from lhf_hf.utils.hub import public_contents
+from lhf_hf.utils.io import write_bytes_atomic, write_text_atomic
 from lhf_hf.utils.progress import library_bars
 
 ROOT = Path(__file__).resolve().parents[1] / "dataset_cards"
@@ -146,9 +147,13 @@ def keep(item: Published, dataset: Path, selection: Path, root: Path = ROOT) -> 
     data, sel = root / item.name, root / f"{item.name}{SELECTION_SUFFIX}"
     for folder in (data, sel):
         shutil.rmtree(folder, ignore_errors=True)
+    public = public_contents(dataset, list(CARD_SOURCES))  # as pushed: no path of this machine
     for rel in CARD_SOURCES:
         (data / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(dataset / rel, data / rel)
+        if rel in public:
+            write_bytes_atomic(public[rel], data / rel)
+        else:
+            shutil.copyfile(dataset / rel, data / rel)
     record = json.loads((selection / CONFIG_FILE).read_text())
     record["source"]["path"] = item.repo  # the pushed dataset, not this machine's folder
     sel.mkdir(parents=True)

@@ -77,6 +77,8 @@ def test_a_kept_card_is_the_pushed_card_and_names_no_local_path(kept, learned_da
     for path in root.rglob("*"):
         if path.suffix in (".md", ".json"):
             assert str(tmp_path) not in path.read_text() and "/work/" not in path.read_text(), path
+        if path.suffix == ".json":  # no absolute path at all (e.g. the PPO verdict's cache file)
+            assert '"/' not in path.read_text(), path
     record = json.loads((root / f"{item.name}-lhf" / "filter_config.json").read_text())
     assert record["source"]["path"] == "YOUR_NAME/darkroom-small"
     assert record["source"]["fingerprint"] == learned_darkroom.fingerprint
