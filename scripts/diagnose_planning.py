@@ -244,8 +244,13 @@ def run(args) -> None:
     train_cfg = Path(args.model, "train_config.json")
     provenance = json.loads(train_cfg.read_text()) if train_cfg.is_file() else {}
     split_seed = args.split_seed
-    if split_seed is None:  # the unseen goals of the model's own split, as lhf evaluate
-        split_seed = int((provenance.get("dataset") or {}).get("split_seed", 0))
+    if split_seed is None:  # the model's own split, as lhf evaluate (a checkpoint: its config's)
+        split_seed = model.config.split_seed
+        if split_seed is None:
+            split_seed = (provenance.get("dataset") or {}).get("split_seed")
+        if split_seed is None:
+            raise ValueError(f"{args.model} does not record its split seed: pass --split-seed")
+        split_seed = int(split_seed)
     args.split_seed = split_seed
     tasks = tuning_tasks(env, args.tasks, split_seed, args.report_on_test)
     check_unseen(get_spec(env), model.config, tasks, split_seed, False, args.model)  # as evaluate

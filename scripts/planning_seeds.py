@@ -15,7 +15,6 @@ goals (``--tasks test --report-on-test``: its test goals, to report a choice alr
 from __future__ import annotations
 
 import argparse
-import json
 
 import numpy as np
 
@@ -49,10 +48,9 @@ def main() -> None:
         raise SystemExit(
             f"error: {a.model} is a {model.config.objective} model; planning needs DICP"
         )
-    split = a.split_seed
-    if split is None:
-        with open(f"{a.model}/train_config.json") as f:
-            split = int(json.load(f)["dataset"]["split_seed"])
+    split = a.split_seed if a.split_seed is not None else model.config.split_seed
+    if split is None:  # a model saved before its config recorded the split
+        raise SystemExit(f"error: {a.model} does not record its split seed: pass --split-seed")
     try:
         tasks = tuning_tasks(model.config.env_id, a.tasks, split, a.report_on_test)
     except UserError as exc:
