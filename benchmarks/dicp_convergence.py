@@ -58,6 +58,43 @@ def goal_means(result: dict) -> tuple[np.ndarray, np.ndarray]:
     return per.mean(axis=(0, 2)), per[:, :, -tail:].mean(axis=(0, 2))
 
 
+def explore_exploit(result: dict) -> dict:
+    """Exploration and exploitation apart: the share of rollouts (a goal in one rollout) whose
+    last 10 % of episodes hold any reward (the goal was found and is returned to), and the mean
+    return of those episodes over the rollouts that found it."""
+    returns = np.asarray(result["returns"], dtype=float)  # (rollouts * tasks, episodes)
+    tail = max(1, returns.shape[1] // 10)
+    late = returns[:, -tail:].mean(1)  # (rollouts * tasks,)
+    found = late > 0
+    return {
+        "found": round(float(found.mean()), 4),
+        "rollouts": int(len(found)),
+        "late_return_when_found": round(float(late[found].mean()), 4) if found.any() else None,
+    }
+
+
+def phantom_rewards(diagnosis: dict, actions: int = 5) -> dict:
+    """How often one search meets a reward the true dynamics do not give, from
+    ``scripts/diagnose_planning.py --parts depth`` (each seed's beam searches along a model-free
+    rollout): per depth d, the candidates per search n_d and their false-positive rate p_d, and
+    1 - prod_d (1 - p_d) ** n_d, the chance that a search holds at least one such reward if the
+    candidates erred independently (an estimate: errors of one context are correlated)."""
+    out = {}
+    for seed, depths in diagnosis["by_depth"].items():
+        searches = depths["0"]["candidates"] / actions  # depth 0: each action from the state
+        n = {d: v["candidates"] / searches for d, v in depths.items()}
+        fp = {d: v["reward_false_positive"] for d, v in depths.items()}
+        log_none = sum(n[d] * np.log1p(-fp[d]) for d in depths)
+        out[seed] = {
+            "candidates_per_search": round(sum(n.values()), 1),
+            "false_positive_rate_mean": round(
+                sum(n[d] * fp[d] for d in depths) / sum(n.values()), 6
+            ),
+            "p_search_with_phantom_reward": round(float(1 - np.exp(log_none)), 4),
+        }
+    return out
+
+
 def paired(a: np.ndarray, b: np.ndarray) -> dict:
     """Mean of ``a - b`` over goals, its 95 % t-interval, and on how many goals it is > 0."""
     d = a - b
@@ -89,6 +126,7 @@ def collect(evals: Path) -> dict:
             "rollouts": res.get("rollouts"),
             "episodes": len(res["mean_curve"]),
             "task_label": res.get("task_label"),
+            "explore_exploit": explore_exploit(res),
             "planned_steps": res.get("planned_steps"),
             "wall_s": res.get("wall_s"),
             "config": res["config"],
@@ -157,9 +195,17 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--evals", required=True, help="folder of step-N-MODE evaluation folders")
     p.add_argument("--train-log", default=None, help="lhf train's log (losses, summary)")
+    p.add_argument("--diagnoses", nargs="*", default=[],
+                   help="diagnose_planning.py JSONs of this training's snapshots, named "
+                   "diagnose-ARM-STEP.json")
     p.add_argument("--out", required=True)
     args = p.parse_args()
     points = collect(Path(args.evals))
+    for path in args.diagnoses:
+        step = int(re.search(r"-(\d+)\.json$", path).group(1))
+        diagnosis = read_json(path)
+        if "by_depth" in diagnosis and step in points:
+            points[step]["phantom_rewards"] = phantom_rewards(diagnosis)
     if not points:
         raise SystemExit(f"no step-N-MODE evaluations under {args.evals}")
     out = Path(args.out)
@@ -179,9 +225,13 @@ def main() -> None:
             f"{m} {r['whole_curve']:.2f}/{r['last10']:.2f}"
             + (f" (d {r['minus_policy']['whole_curve']['mean']:+.2f} "
                f"{r['minus_policy']['whole_curve']['ci95']})" if "minus_policy" in r else "")
-            for m, r in modes.items()
+            + f" found {r['explore_exploit']['found']:.2f}"
+            f" late|found {r['explore_exploit']['late_return_when_found']}"
+            for m, r in modes.items() if m != "phantom_rewards"
         )  # fmt: skip
         print(f"step {step}: {row}")
+        if "phantom_rewards" in modes:
+            print(f"  phantom rewards per search: {modes['phantom_rewards']}")
     print(json.dumps(str(out / "convergence.png")))
 
 
