@@ -1,0 +1,380 @@
+// Training attention for small head dimensions, forward and backward, with the dropout mask drawn
+// from a counter-based hash (never stored):
+//
+//     P = softmax(scale * Q K^T over the allowed keys);  O = (P * Z) V,  Z = keep / (1 - p)
+//
+// Why a kernel (BENCHMARKS.md, "Training near the FLOP floor"): with head dimension 8 a score costs
+// 16 FLOP, so torch's path (batched matmuls at ~11 GFLOP/s, softmax, dropout mask, elementwise
+// products, each a trip of the whole (L, L) tensor through memory) spent ~70 % of an AD step at
+// context 200 in attention.  Here one (batch, head) at a time: K and V are transposed into
+// (d, L) buffers (L1: 2 x 8 x 400 floats at DICP's 400 tokens), and every query row is computed
+// start to end over its allowed keys, vectorised across keys, the row's scores in an L1 buffer.
+// Nothing of size (L, L) is ever written.  Flash-attention style, the forward saves only each row's
+// log-sum-exp; the backward recomputes P from it and redraws the same dropout mask.
+//
+// Allowed keys: query i attends to keys [lo_i, hi_i) (causal: [0, i + 1); the band mask of
+// lhf_hf.modeling.attention: a window ending at i); tiles outside the range are never computed.
+//
+// Dropout: element (b, h, i, j) of a call is kept iff hash(i * L + j; key(seed, b * H + h)) >=
+// threshold (32-bit, threshold = round(p 2^32)), so the mask depends only on the call's seed (drawn
+// by the Python side from torch's generator) and the element's coordinates: not on threads, tiles
+// or the order of work, and the backward redraws it exactly.  The hash is a keyed variant of
+// Chris Wellons' "lowbias32" integer mixer (two multiply-xorshift rounds, the second keyed), not a
+// cryptographic or Philox stream: good enough for a dropout mask (tests check its keep rate, and
+// that heads, rows and seeds are uncorrelated), at ~8 vector ops per 16 weights.
+//
+// Build: lhf_hf/modeling/attention_kernel.py (g++ -O3 -march=native, cached per machine, like the
+// PPO kernel).  The torch reference: lhf_hf/modeling/train_attention.py (DropoutAttention).
+
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+
+#include <immintrin.h>
+
+namespace {
+
+#if defined(__AVX512F__)
+constexpr int VW = 16;  // floats per vector: one zmm register
+#else
+constexpr int VW = 8;  // one ymm register (AVX2); plain SSE builds split it, correct but slow
+#endif
+
+typedef float vf __attribute__((vector_size(VW * sizeof(float))));
+typedef int32_t vi __attribute__((vector_size(VW * sizeof(int32_t))));
+typedef uint32_t vu __attribute__((vector_size(VW * sizeof(uint32_t))));
+
+inline vf vload(const float* p) { vf v; std::memcpy(&v, p, sizeof v); return v; }
+inline void vstore(float* p, vf v) { std::memcpy(p, &v, sizeof v); }
+// A broadcast, not `vf{} + x` (a real addition, compiled to a scalar add and a shuffle).
+inline vf vset(float x) {
+#if defined(__AVX512F__)
+  return (vf)_mm512_set1_ps(x);
+#elif defined(__AVX__)
+  return (vf)_mm256_set1_ps(x);
+#else
+  vf v;
+  for (int j = 0; j < VW; ++j) v[j] = x;
+  return v;
+#endif
+}
+inline vu vsetu(uint32_t x) {
+  vu v;
+  for (int j = 0; j < VW; ++j) v[j] = x;
+  return v;
+}
+inline vi iota() {
+  vi v;
+  for (int j = 0; j < VW; ++j) v[j] = j;
+  return v;
+}
+inline float hsum(vf v) {  // tree: log2(VW) shuffle + add levels
+#if defined(__AVX512F__)
+  v += __builtin_shuffle(v, vi{8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7});
+  v += __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11});
+  v += __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13});
+  v += __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14});
+#else
+  v += __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3});
+  v += __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5});
+  v += __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6});
+#endif
+  return v[0];
+}
+inline float hmax(vf v) {
+  float m = v[0];
+  for (int j = 1; j < VW; ++j) m = v[j] > m ? v[j] : m;
+  return m;
+}
+
+// exp(x) for x <= 0 (scores minus their row's maximum or log-sum-exp), ~13 vector ops.
+// x = n ln2 + r, |r| <= ln2 / 2, n = round(x / ln2); exp(r) by Cephes' expf polynomial
+// (1 + r + r^2 P(r), P of degree 5: relative error ~1e-7 on that interval), times 2^n built in the
+// exponent bits.  x < -87.3 (exp below the smallest normal float, and -inf: masked lanes) gives
+// exactly 0; tests check the relative error against float64 exp over [-87, 0].
+inline vf vexp(vf x) {
+  const vf xc = x > -87.3f ? x : vset(-87.3f);
+  const vf magic = vset(12582912.f);  // 1.5 * 2^23: adding it rounds to an integer
+  const vf t = xc * 1.44269504088896341f + magic;
+  const vf n = t - magic;
+  vf r = xc - n * 0.693359375f;  // ln 2 in two parts (Cody-Waite): the first is exact in n * c
+  r = r - n * -2.12194440e-4f;
+  vf p = vset(1.9875691500e-4f);
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  p = p * (r * r) + r + 1.f;
+  const vi e = (__builtin_convertvector(n, vi) + 127) << 23;  // 2^n, n in [-126, 0]
+  vf scale;
+  std::memcpy(&scale, &e, sizeof scale);
+  const vf y = p * scale;
+  return x > -87.3f ? y : vset(0.f);
+}
+
+inline uint64_t splitmix64(uint64_t z) {
+  z += 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+struct Key {
+  uint32_t k1, k2;
+};
+inline Key head_key(uint64_t seed, int64_t bh) {
+  const uint64_t z = splitmix64(seed ^ splitmix64(static_cast<uint64_t>(bh)));
+  return {static_cast<uint32_t>(z), static_cast<uint32_t>(z >> 32)};
+}
+// 32 random bits per element index (i * L + j) under a head's key.
+inline vu vhash(vu x, Key k) {
+  x ^= k.k1;
+  x ^= x >> 16;
+  x *= 0x7feb352du;
+  x ^= x >> 15;
+  x ^= k.k2;
+  x *= 0x846ca68bu;
+  x ^= x >> 16;
+  return x;
+}
+
+}  // namespace
+
+extern "C" {
+
+struct AttnArgs {  // mirrored by ctypes in attention_kernel.py (same field order)
+  int64_t B, H, L, D;
+  // element strides (batch, head, position) of each (B, H, L, D) tensor; D is contiguous
+  int64_t q_s[3], k_s[3], v_s[3], o_s[3], do_s[3], dq_s[3], dk_s[3], dv_s[3];
+  const float *q, *k, *v;
+  float* o;  // forward output (the dropped-out product), read by the backward
+  float* lse;  // (B, H, L) row log-sum-exp (-inf for a row without keys)
+  const float* dout;
+  float *dq, *dk, *dv;
+  const int32_t *lo, *hi;  // (L,) query i attends to keys [lo[i], hi[i])
+  float scale;  // applied to Q K^T
+  float keep_scale;  // 1 / (1 - p)
+  uint32_t threshold;  // kept iff hash >= threshold; 0: no dropout
+  uint64_t seed;
+};
+
+int lhf_attn_abi_version() { return 1; }
+int lhf_attn_vector_width() { return VW; }
+
+}  // extern "C"
+
+namespace {
+
+// Per-call scratch: K^T, V^T and (backward) dK^T, dV^T as (D, Lp) plus one row of scores.
+struct Scratch {
+  float* buf = nullptr;
+  float *kt, *vt, *dkt, *dvt, *row;
+  bool init(int64_t D, int64_t Lp) {
+    const int64_t floats = (4 * D + 1) * Lp;
+    buf = static_cast<float*>(std::aligned_alloc(64, ((floats * 4 + 63) / 64) * 64));
+    if (!buf) return false;
+    kt = buf, vt = kt + D * Lp, dkt = vt + D * Lp, dvt = dkt + D * Lp, row = dvt + D * Lp;
+    return true;
+  }
+  ~Scratch() { std::free(buf); }
+};
+
+template <int D>
+void load_transposed(const float* x, const int64_t* s, int64_t b, int64_t h, int64_t L,
+                     int64_t Lp, float* xt) {
+  const float* base = x + b * s[0] + h * s[1];
+  for (int64_t j = 0; j < L; ++j)
+    for (int c = 0; c < D; ++c) xt[c * Lp + j] = base[j * s[2] + c];
+  for (int c = 0; c < D; ++c)
+    for (int64_t j = L; j < Lp; ++j) xt[c * Lp + j] = 0.f;
+}
+
+template <int D>
+void forward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
+  const int64_t H = a->H, L = a->L, b = bh / H, h = bh % H;
+  load_transposed<D>(a->k, a->k_s, b, h, L, Lp, w.kt);
+  load_transposed<D>(a->v, a->v_s, b, h, L, Lp, w.vt);
+  const float* qb = a->q + b * a->q_s[0] + h * a->q_s[1];
+  float* ob = a->o + b * a->o_s[0] + h * a->o_s[1];
+  float* lse = a->lse + bh * L;
+  const Key key = head_key(a->seed, bh);
+  const bool dropout = a->threshold != 0;
+  const vu thr = vsetu(a->threshold);
+  const vi lanes = iota();
+  for (int64_t i = 0; i < L; ++i) {
+    const int64_t lo = a->lo[i], hi = a->hi[i];
+    float* oi = ob + i * a->o_s[2];
+    if (lo >= hi) {  // no key: 0, as SDPA gives a fully masked row
+      for (int c = 0; c < D; ++c) oi[c] = 0.f;
+      lse[i] = -INFINITY;
+      continue;
+    }
+    vf qi[D];
+    for (int c = 0; c < D; ++c) qi[c] = vset(qb[i * a->q_s[2] + c] * a->scale);
+    const int64_t j0 = lo / VW * VW;
+    vf m = vset(-INFINITY);
+    for (int64_t jb = j0; jb < hi; jb += VW) {
+      vf s = qi[0] * vload(w.kt + jb);
+      for (int c = 1; c < D; ++c) s += qi[c] * vload(w.kt + c * Lp + jb);
+      const vi j = lanes + static_cast<int32_t>(jb);
+      s = (j >= static_cast<int32_t>(lo)) & (j < static_cast<int32_t>(hi)) ? s : vset(-INFINITY);
+      vstore(w.row + jb, s);
+      m = m > s ? m : s;
+    }
+    const float mx = hmax(m);
+    vf sum = vset(0.f), acc[D];
+    for (int c = 0; c < D; ++c) acc[c] = vset(0.f);
+    const vu idx0 = (vu)(lanes + static_cast<int32_t>(i * L));
+    for (int64_t jb = j0; jb < hi; jb += VW) {
+      vf p = vexp(vload(w.row + jb) - mx);
+      sum += p;
+      if (dropout) {
+        const vu bits = vhash(idx0 + static_cast<uint32_t>(jb), key);
+        p = bits >= thr ? p : vset(0.f);
+      }
+      for (int c = 0; c < D; ++c) acc[c] += p * vload(w.vt + c * Lp + jb);
+    }
+    const float l = hsum(sum);
+    const float inv = (dropout ? a->keep_scale : 1.f) / l;
+    for (int c = 0; c < D; ++c) oi[c] = hsum(acc[c]) * inv;
+    lse[i] = mx + std::log(l);
+  }
+}
+
+template <int D>
+void backward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
+  const int64_t H = a->H, L = a->L, b = bh / H, h = bh % H;
+  load_transposed<D>(a->k, a->k_s, b, h, L, Lp, w.kt);
+  load_transposed<D>(a->v, a->v_s, b, h, L, Lp, w.vt);
+  std::memset(w.dkt, 0, 2 * D * Lp * sizeof(float));  // dkt and dvt are adjacent
+  const float* qb = a->q + b * a->q_s[0] + h * a->q_s[1];
+  const float* ob = a->o + b * a->o_s[0] + h * a->o_s[1];
+  const float* dob = a->dout + b * a->do_s[0] + h * a->do_s[1];
+  float* dqb = a->dq + b * a->dq_s[0] + h * a->dq_s[1];
+  const float* lse = a->lse + bh * L;
+  const Key key = head_key(a->seed, bh);
+  const bool dropout = a->threshold != 0;
+  const float z = dropout ? a->keep_scale : 1.f;
+  const vu thr = vsetu(a->threshold);
+  const vi lanes = iota();
+  for (int64_t i = 0; i < L; ++i) {
+    const int64_t lo = a->lo[i], hi = a->hi[i];
+    float* dqi = dqb + i * a->dq_s[2];
+    if (lo >= hi) {
+      for (int c = 0; c < D; ++c) dqi[c] = 0.f;
+      continue;
+    }
+    float qs[D], dos[D];
+    float drow = 0.f;  // dO_i . O_i = sum_j dP_ij P_ij (FlashAttention's identity)
+    for (int c = 0; c < D; ++c) {
+      qs[c] = qb[i * a->q_s[2] + c] * a->scale;
+      dos[c] = dob[i * a->do_s[2] + c];
+      drow += dos[c] * ob[i * a->o_s[2] + c];
+    }
+    vf acc[D];
+    for (int c = 0; c < D; ++c) acc[c] = vset(0.f);
+    const vf l = vset(lse[i]), dr = vset(drow);
+    const vu idx0 = (vu)(lanes + static_cast<int32_t>(i * L));
+    for (int64_t jb = lo / VW * VW; jb < hi; jb += VW) {
+      vf s = vset(qs[0]) * vload(w.kt + jb), dp = vset(dos[0]) * vload(w.vt + jb);
+      for (int c = 1; c < D; ++c) {
+        s += vset(qs[c]) * vload(w.kt + c * Lp + jb);
+        dp += vset(dos[c]) * vload(w.vt + c * Lp + jb);
+      }
+      const vi j = lanes + static_cast<int32_t>(jb);
+      vf p = vexp(s - l);
+      p = (j >= static_cast<int32_t>(lo)) & (j < static_cast<int32_t>(hi)) ? p : vset(0.f);
+      vf zj = vset(z);  // Z_ij: 1 / (1 - p) where kept, 0 where dropped
+      if (dropout) {
+        const vu bits = vhash(idx0 + static_cast<uint32_t>(jb), key);
+        zj = bits >= thr ? zj : vset(0.f);
+      }
+      const vf pz = p * zj;  // the weight O used
+      const vf ds = p * (dp * zj - dr);  // dS = P (dP Z - rowsum)
+      for (int c = 0; c < D; ++c) {
+        acc[c] += ds * vload(w.kt + c * Lp + jb);
+        vstore(w.dkt + c * Lp + jb, vload(w.dkt + c * Lp + jb) + ds * qs[c]);
+        vstore(w.dvt + c * Lp + jb, vload(w.dvt + c * Lp + jb) + pz * dos[c]);
+      }
+    }
+    for (int c = 0; c < D; ++c) dqi[c] = hsum(acc[c]) * a->scale;
+  }
+  float* dkb = a->dk + b * a->dk_s[0] + h * a->dk_s[1];
+  float* dvb = a->dv + b * a->dv_s[0] + h * a->dv_s[1];
+  for (int64_t j = 0; j < L; ++j)
+    for (int c = 0; c < D; ++c) {
+      dkb[j * a->dk_s[2] + c] = w.dkt[c * Lp + j];
+      dvb[j * a->dv_s[2] + c] = w.dvt[c * Lp + j];
+    }
+}
+
+template <int D>
+int run(const AttnArgs* a, int64_t bh0, int64_t bh1, bool backward) {
+  const int64_t Lp = (a->L + VW - 1) / VW * VW;
+  Scratch w;
+  if (!w.init(D, Lp)) return 2;
+  for (int64_t bh = bh0; bh < bh1; ++bh) {
+    if (backward)
+      backward_head<D>(a, bh, w, Lp);
+    else
+      forward_head<D>(a, bh, w, Lp);
+  }
+  return 0;
+}
+
+int dispatch(const AttnArgs* a, int64_t bh0, int64_t bh1, bool backward) {
+  if (bh0 < 0 || bh1 > a->B * a->H || bh0 > bh1 || a->L < 1 || a->L > 46340) return 1;
+  for (int64_t i = 0; i < a->L; ++i)
+    if (a->lo[i] < 0 || a->hi[i] > a->L) return 3;
+  switch (a->D) {
+    case 8: return run<8>(a, bh0, bh1, backward);
+    case 16: return run<16>(a, bh0, bh1, backward);
+    default: return 4;
+  }
+}
+
+}  // namespace
+
+extern "C" {
+
+// Heads [bh0, bh1) of B * H (index b * H + h): O and lse from Q, K, V.
+int lhf_attn_forward(const AttnArgs* a, int64_t bh0, int64_t bh1) {
+  return dispatch(a, bh0, bh1, false);
+}
+
+// Heads [bh0, bh1): dQ, dK, dV from Q, K, V, O, lse and dO.
+int lhf_attn_backward(const AttnArgs* a, int64_t bh0, int64_t bh1) {
+  return dispatch(a, bh0, bh1, true);
+}
+
+// The call's keep mask as the kernel draws it, (B, H, L, L) bytes (1 = kept), for tests: the
+// reference attention run with this mask must give the kernel's outputs and gradients.
+void lhf_attn_keep_mask(const AttnArgs* a, uint8_t* out) {
+  const int64_t L = a->L;
+  const vi lanes = iota();
+  for (int64_t bh = 0; bh < a->B * a->H; ++bh) {
+    const Key key = head_key(a->seed, bh);
+    for (int64_t i = 0; i < L; ++i)
+      for (int64_t jb = 0; jb < L; jb += VW) {
+        const vu bits = vhash((vu)(lanes + static_cast<int32_t>(i * L + jb)), key);
+        for (int t = 0; t < VW && jb + t < L; ++t)
+          out[(bh * L + i) * L + jb + t] = bits[t] >= a->threshold;
+      }
+  }
+}
+
+// The kernel's exp on n floats (tests check it against float64 exp).
+void lhf_attn_exp(const float* x, float* y, int64_t n) {
+  int64_t j = 0;
+  for (; j + VW <= n; j += VW) vstore(y + j, vexp(vload(x + j)));
+  if (j < n) {
+    float tail[VW] = {};
+    std::memcpy(tail, x + j, (n - j) * sizeof(float));
+    const vf t = vexp(vload(tail));
+    for (int64_t k = 0; k < n - j; ++k) y[j + k] = t[k];
+  }
+}
+
+}  // extern "C"
