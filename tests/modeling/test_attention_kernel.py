@@ -300,3 +300,75 @@ def test_the_model_with_dropout_equals_the_torch_path_given_the_kernels_masks(
     torch.testing.assert_close(loss, ref_loss, rtol=1e-5, atol=1e-6)
     for name in grads:
         torch.testing.assert_close(grads[name], ref_grads[name], rtol=1e-4, atol=1e-6, msg=name)
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = open("/proc/cpuinfo").read()
+    except OSError:
+        return set()
+    line = next((ln for ln in text.splitlines() if ln.startswith("flags")), "flags:")
+    return set(line.split(":", 1)[1].split())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not {"avx2", "fma"} <= _cpu_flags(), reason="needs a CPU with AVX2 and FMA")
+def test_the_avx2_path_equals_the_reference_as_the_native_one(tmp_path, monkeypatch):
+    """The code path of an AVX2-only CPU (8-float vectors), built here with -march=haswell: another
+    library, the same outputs, gradients, exp accuracy and the same dropout mask bit for bit (the
+    hash does not depend on the vector width)."""
+    attention_kernel.build.cache_clear()
+    attention_kernel.load.cache_clear()
+    try:
+        monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
+        native_lib = attention_kernel.build()
+        native_mask = keep_mask(2, 3, 45, 0.1, seed=9)
+        monkeypatch.setenv("LHF_HF_KERNEL_MARCH", "haswell")
+        attention_kernel.build.cache_clear()
+        attention_kernel.load.cache_clear()
+        assert attention_kernel.build() != native_lib
+        assert attention_kernel.load().lhf_attn_vector_width() == 8
+        assert torch.equal(keep_mask(2, 3, 45, 0.1, seed=9), native_mask)
+        for kind in ("causal", "band", "full"):
+            for p in (0.0, 0.1):
+                for shape in [(2, 3, 37, 8), (2, 2, 19, 16)]:
+                    test_outputs_and_gradients_equal_the_reference(kind, p, *shape)
+        test_exp_relative_error()
+        test_results_do_not_depend_on_threads()
+    finally:
+        attention_kernel.build.cache_clear()
+        attention_kernel.load.cache_clear()
+
+
+def test_no_compiler_means_no_kernel_and_auto_trains_with_torch(monkeypatch, tmp_path):
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.errors import UserError
+    from lhf_hf.training.attention_backend import resolve_attention_kernel
+
+    attention_kernel.build.cache_clear()
+    attention_kernel.load.cache_clear()
+    try:
+        monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
+        monkeypatch.setenv("CXX", "no-such-compiler-lhf")
+        assert "no C++ compiler 'no-such-compiler-lhf'" in attention_kernel.available()
+        config = grid_config("ad", attention_dropout=0.1)
+        cpu = torch.device("cpu")
+
+        def cfg(choice):
+            return TrainConfig(dataset="d", objective="ad", out="o", attention_kernel=choice)
+
+        assert resolve_attention_kernel(cfg("auto"), config, cpu) == "torch"
+        assert resolve_attention_kernel(cfg("torch"), config, cpu) == "torch"
+        with pytest.raises(UserError, match="attention_kernel='kernel': no C.. compiler"):
+            resolve_attention_kernel(cfg("kernel"), config, cpu)
+    finally:
+        attention_kernel.build.cache_clear()
+        attention_kernel.load.cache_clear()
+    config = grid_config("ad")
+    assert resolve_attention_kernel(cfg("auto"), config, torch.device("cpu")) == "kernel"
+    assert resolve_attention_kernel(cfg("auto"), config, torch.device("cuda")) == "torch"
+    head_dim_4 = grid_config("ad", num_attention_heads=4)  # hidden 16 / 4 heads
+    with pytest.raises(UserError, match=r"head dims \(8, 16\), this model 4"):
+        resolve_attention_kernel(cfg("kernel"), head_dim_4, torch.device("cpu"))
+    mixed = TrainConfig(dataset="d", objective="ad", out="o", training_args={"bf16": True})
+    assert resolve_attention_kernel(mixed, config, torch.device("cpu")) == "torch"

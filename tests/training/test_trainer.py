@@ -20,7 +20,7 @@ from lhf_hf.cli.main import main
 from lhf_hf.configs import FilterConfig, TrainConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.filtering.select import filter_histories
-from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES, ICRLModel, icrl_config
+from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES, ICRLModel, attention_kernel, icrl_config
 from lhf_hf.modeling.remote_code import model_code
 from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
 from lhf_hf.training.trainer import last_checkpoint
@@ -94,6 +94,9 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     assert prov["sequence_length"] == 160
     # so is the reward weighting (DICP on Darkroom: 'actions'); the flag is kept as given
     assert prov["reward_weighting"] == "actions" and prov["train"]["reward_weighting"] is None
+    # and the attention code that ran (auto: the kernel where it builds; attention_kernel.py)
+    kernel = "kernel" if attention_kernel.available() is None else "torch"
+    assert prov["attention_kernel"] == kernel and prov["train"]["attention_kernel"] == "auto"
     card = (out / "README.md").read_text()  # the card says how it was trained and evaluated
     assert "sequences of 160 transitions, band attention over the last 40" in card
     assert "reward loss weighting 'actions'" in card
@@ -261,6 +264,12 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
         ({"seed": 1}, r"seed: 0 -> 1"),
         ({"max_steps": 13}, r"max_steps: 12 -> 13"),
         ({"dataset": str(learned_darkroom.root)}, r"dataset: [0-9a-f]{16} -> [0-9a-f]{16}"),
+        # the torch path draws other dropout masks than the kernel's (attention_kernel.py)
+        *(
+            [({"attention_kernel": "torch"}, r"attention_kernel: 'kernel' -> 'torch'")]
+            if attention_kernel.available() is None
+            else []
+        ),
     ]:
         with pytest.raises(ValueError, match=f"different setup \\(.*{message}"):
             train(TrainConfig(out=str(part), resume=True, **{**cfg, **changed}))
