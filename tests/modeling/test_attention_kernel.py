@@ -345,22 +345,21 @@ def test_no_compiler_means_no_kernel_and_auto_trains_with_torch(monkeypatch, tmp
     from lhf_hf.errors import UserError
     from lhf_hf.training.attention_backend import resolve_attention_kernel
 
+    def cfg(choice):
+        return TrainConfig(dataset="d", objective="ad", out="o", attention_kernel=choice)
+
+    config, cpu = grid_config("ad", attention_dropout=0.1), torch.device("cpu")
     attention_kernel.build.cache_clear()
     attention_kernel.load.cache_clear()
     try:
-        monkeypatch.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
-        monkeypatch.setenv("CXX", "no-such-compiler-lhf")
-        assert "no C++ compiler 'no-such-compiler-lhf'" in attention_kernel.available()
-        config = grid_config("ad", attention_dropout=0.1)
-        cpu = torch.device("cpu")
-
-        def cfg(choice):
-            return TrainConfig(dataset="d", objective="ad", out="o", attention_kernel=choice)
-
-        assert resolve_attention_kernel(cfg("auto"), config, cpu) == "torch"
-        assert resolve_attention_kernel(cfg("torch"), config, cpu) == "torch"
-        with pytest.raises(UserError, match="attention_kernel='kernel': no C.. compiler"):
-            resolve_attention_kernel(cfg("kernel"), config, cpu)
+        with monkeypatch.context() as m:
+            m.setenv("LHF_HF_KERNEL_CACHE", str(tmp_path))
+            m.setenv("CXX", "no-such-compiler-lhf")
+            assert "no C++ compiler 'no-such-compiler-lhf'" in attention_kernel.available()
+            assert resolve_attention_kernel(cfg("auto"), config, cpu) == "torch"
+            assert resolve_attention_kernel(cfg("torch"), config, cpu) == "torch"
+            with pytest.raises(UserError, match="attention_kernel='kernel': no C.. compiler"):
+                resolve_attention_kernel(cfg("kernel"), config, cpu)
     finally:
         attention_kernel.build.cache_clear()
         attention_kernel.load.cache_clear()

@@ -82,10 +82,84 @@ inline float hsum(vf v) {  // tree: log2(VW) shuffle + add levels
 #endif
   return v[0];
 }
-inline float hmax(vf v) {
-  float m = v[0];
-  for (int j = 1; j < VW; ++j) m = v[j] > m ? v[j] : m;
-  return m;
+inline float hmax(vf v) {  // tree, as hsum
+#if defined(__AVX512F__)
+  vf u = __builtin_shuffle(v, vi{8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7});
+  v = v > u ? v : u;
+  u = __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11});
+  v = v > u ? v : u;
+  u = __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13});
+  v = v > u ? v : u;
+  u = __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14});
+#else
+  vf u = __builtin_shuffle(v, vi{4, 5, 6, 7, 0, 1, 2, 3});
+  v = v > u ? v : u;
+  u = __builtin_shuffle(v, vi{2, 3, 0, 1, 6, 7, 4, 5});
+  v = v > u ? v : u;
+  u = __builtin_shuffle(v, vi{1, 0, 3, 2, 5, 4, 7, 6});
+#endif
+  v = v > u ? v : u;
+  return v[0];
+}
+
+// fold<G>(a, b): each group of G lanes of a and of b summed in half, a's halves first: lane t of
+// the result is the sum of lanes (t / H) G + t % H and that + H of (a, b) side by side, H = G / 2.
+// Folding pairs of vectors level by level gives the lane sums of N vectors in ~3 N shuffles and
+// adds instead of N trees of 2 log2(VW) (a row of a short context has few keys, so these sums are
+// a visible part of its cost).
+template <int G>
+inline vf fold(vf a, vf b) {
+#if defined(__AVX512F__)
+  if constexpr (G == 16)
+    return __builtin_shuffle(a, b, vi{0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23}) +
+           __builtin_shuffle(a, b, vi{8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31});
+  if constexpr (G == 8)
+    return __builtin_shuffle(a, b, vi{0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27}) +
+           __builtin_shuffle(a, b, vi{4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31});
+  if constexpr (G == 4)
+    return __builtin_shuffle(a, b, vi{0, 1, 4, 5, 8, 9, 12, 13, 16, 17, 20, 21, 24, 25, 28, 29}) +
+           __builtin_shuffle(a, b, vi{2, 3, 6, 7, 10, 11, 14, 15, 18, 19, 22, 23, 26, 27, 30, 31});
+  if constexpr (G == 2)
+    return __builtin_shuffle(a, b, vi{0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30}) +
+           __builtin_shuffle(a, b, vi{1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31});
+#else
+  if constexpr (G == 8)
+    return __builtin_shuffle(a, b, vi{0, 1, 2, 3, 8, 9, 10, 11}) +
+           __builtin_shuffle(a, b, vi{4, 5, 6, 7, 12, 13, 14, 15});
+  if constexpr (G == 4)
+    return __builtin_shuffle(a, b, vi{0, 1, 4, 5, 8, 9, 12, 13}) +
+           __builtin_shuffle(a, b, vi{2, 3, 6, 7, 10, 11, 14, 15});
+  if constexpr (G == 2)
+    return __builtin_shuffle(a, b, vi{0, 2, 4, 6, 8, 10, 12, 14}) +
+           __builtin_shuffle(a, b, vi{1, 3, 5, 7, 9, 11, 13, 15});
+#endif
+}
+// One level: N vectors with groups of G lanes -> N / 2 vectors with groups of G / 2 (N even), or
+// one vector folded with itself (N == 1).
+template <int N, int G>
+inline void fold_level(vf* v) {
+  if constexpr (N == 1)
+    v[0] = fold<G>(v[0], v[0]);
+  else
+    for (int k = 0; k < N / 2; ++k) v[k] = fold<G>(v[2 * k], v[2 * k + 1]);
+}
+template <int N, int G>
+inline void fold_all(vf* v) {  // down to groups of one lane
+  if constexpr (G > 1) {
+    fold_level<N, G>(v);
+    fold_all<(N > 1 ? N / 2 : 1), G / 2>(v);
+  }
+}
+// out[c] = the lane sum of in[c], c < N (N a power of 2, <= 2 VW).
+template <int N>
+inline void hsums(const vf* in, float* out) {
+  vf v[N];  // a copy: the callers' accumulators stay in registers
+  for (int k = 0; k < N; ++k) v[k] = in[k];
+  fold_all<N, VW>(v);
+  // log2(VW) levels leave max(N / VW, 1) vectors, each with its sums in order in its first lanes
+  constexpr int left = N > VW ? N / VW : 1, per = N / left;
+  for (int k = 0; k < left; ++k)
+    for (int t = 0; t < per; ++t) out[k * per + t] = v[k][t];
 }
 
 // exp(x) for x <= 0 (scores minus their row's maximum or log-sum-exp), ~13 vector ops.
@@ -203,42 +277,50 @@ void forward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
   const bool dropout = a->threshold != 0;
   const vu thr = vsetu(a->threshold);
   const vi lanes = iota();
+  // locals, so that the compiler keeps them in registers across the stores below
+  const float* __restrict kt = w.kt;
+  const float* __restrict vt = w.vt;
+  float* __restrict row = w.row;
+  const int64_t q_l = a->q_s[2], o_l = a->o_s[2];
+  const float scale = a->scale, keep_scale = dropout ? a->keep_scale : 1.f;
   for (int64_t i = 0; i < L; ++i) {
     const int64_t lo = a->lo[i], hi = a->hi[i];
-    float* oi = ob + i * a->o_s[2];
+    float* oi = ob + i * o_l;
     if (lo >= hi) {  // no key: 0, as SDPA gives a fully masked row
       for (int c = 0; c < D; ++c) oi[c] = 0.f;
       lse[i] = -INFINITY;
       continue;
     }
     vf qi[D];
-    for (int c = 0; c < D; ++c) qi[c] = vset(qb[i * a->q_s[2] + c] * a->scale);
+    for (int c = 0; c < D; ++c) qi[c] = vset(qb[i * q_l + c] * scale);
     const int64_t j0 = lo / VW * VW;
     vf m = vset(-INFINITY);
     for (int64_t jb = j0; jb < hi; jb += VW) {
-      vf s = qi[0] * vload(w.kt + jb);
-      for (int c = 1; c < D; ++c) s += qi[c] * vload(w.kt + c * Lp + jb);
+      vf s = qi[0] * vload(kt + jb);
+      for (int c = 1; c < D; ++c) s += qi[c] * vload(kt + c * Lp + jb);
       const vi j = lanes + static_cast<int32_t>(jb);
       s = (j >= static_cast<int32_t>(lo)) & (j < static_cast<int32_t>(hi)) ? s : vset(-INFINITY);
-      vstore(w.row + jb, s);
+      vstore(row + jb, s);
       m = m > s ? m : s;
     }
     const float mx = hmax(m);
-    vf sum = vset(0.f), acc[D];
-    for (int c = 0; c < D; ++c) acc[c] = vset(0.f);
+    vf acc[D + 1];  // D value sums, then the row's sum of P (its normaliser)
+    for (int c = 0; c <= D; ++c) acc[c] = vset(0.f);
     const vu idx0 = (vu)(lanes + static_cast<int32_t>(i * L));
     for (int64_t jb = j0; jb < hi; jb += VW) {
-      vf p = vexp(vload(w.row + jb) - mx);
-      sum += p;
+      vf p = vexp(vload(row + jb) - mx);
+      acc[D] += p;
       if (dropout) {
         const vu bits = vhash(idx0 + static_cast<uint32_t>(jb), key);
         p = bits >= thr ? p : vset(0.f);
       }
-      for (int c = 0; c < D; ++c) acc[c] += p * vload(w.vt + c * Lp + jb);
+      for (int c = 0; c < D; ++c) acc[c] += p * vload(vt + c * Lp + jb);
     }
-    const float l = hsum(sum);
-    const float inv = (dropout ? a->keep_scale : 1.f) / l;
-    for (int c = 0; c < D; ++c) oi[c] = hsum(acc[c]) * inv;
+    const float l = hsum(acc[D]);
+    float sums[D];
+    hsums<D>(acc, sums);
+    const float inv = keep_scale / l;
+    for (int c = 0; c < D; ++c) oi[c] = sums[c] * inv;
     lse[i] = mx + std::log(l);
   }
 }
@@ -259,6 +341,11 @@ void backward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
   const float z = dropout ? a->keep_scale : 1.f;
   const vu thr = vsetu(a->threshold);
   const vi lanes = iota();
+  const float* __restrict kt = w.kt;
+  const float* __restrict vt = w.vt;
+  float* __restrict dkt = w.dkt;
+  float* __restrict dvt = w.dvt;
+  const float scale = a->scale;
   for (int64_t i = 0; i < L; ++i) {
     const int64_t lo = a->lo[i], hi = a->hi[i];
     float* dqi = dqb + i * a->dq_s[2];
@@ -269,7 +356,7 @@ void backward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
     float qs[D], dos[D];
     float drow = 0.f;  // dO_i . O_i = sum_j dP_ij P_ij (FlashAttention's identity)
     for (int c = 0; c < D; ++c) {
-      qs[c] = qb[i * a->q_s[2] + c] * a->scale;
+      qs[c] = qb[i * a->q_s[2] + c] * scale;
       dos[c] = dob[i * a->do_s[2] + c];
       drow += dos[c] * ob[i * a->o_s[2] + c];
     }
@@ -278,10 +365,10 @@ void backward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
     const vf l = vset(lse[i]), dr = vset(drow);
     const vu idx0 = (vu)(lanes + static_cast<int32_t>(i * L));
     for (int64_t jb = lo / VW * VW; jb < hi; jb += VW) {
-      vf s = vset(qs[0]) * vload(w.kt + jb), dp = vset(dos[0]) * vload(w.vt + jb);
+      vf s = vset(qs[0]) * vload(kt + jb), dp = vset(dos[0]) * vload(vt + jb);
       for (int c = 1; c < D; ++c) {
-        s += vset(qs[c]) * vload(w.kt + c * Lp + jb);
-        dp += vset(dos[c]) * vload(w.vt + c * Lp + jb);
+        s += vset(qs[c]) * vload(kt + c * Lp + jb);
+        dp += vset(dos[c]) * vload(vt + c * Lp + jb);
       }
       const vi j = lanes + static_cast<int32_t>(jb);
       vf p = vexp(s - l);
@@ -294,12 +381,14 @@ void backward_head(const AttnArgs* a, int64_t bh, Scratch& w, int64_t Lp) {
       const vf pz = p * zj;  // the weight O used
       const vf ds = p * (dp * zj - dr);  // dS = P (dP Z - rowsum)
       for (int c = 0; c < D; ++c) {
-        acc[c] += ds * vload(w.kt + c * Lp + jb);
-        vstore(w.dkt + c * Lp + jb, vload(w.dkt + c * Lp + jb) + ds * qs[c]);
-        vstore(w.dvt + c * Lp + jb, vload(w.dvt + c * Lp + jb) + pz * dos[c]);
+        acc[c] += ds * vload(kt + c * Lp + jb);
+        vstore(dkt + c * Lp + jb, vload(dkt + c * Lp + jb) + ds * qs[c]);
+        vstore(dvt + c * Lp + jb, vload(dvt + c * Lp + jb) + pz * dos[c]);
       }
     }
-    for (int c = 0; c < D; ++c) dqi[c] = hsum(acc[c]) * a->scale;
+    float sums[D];
+    hsums<D>(acc, sums);
+    for (int c = 0; c < D; ++c) dqi[c] = sums[c] * scale;
   }
   float* dkb = a->dk + b * a->dk_s[0] + h * a->dk_s[1];
   float* dvb = a->dv + b * a->dv_s[0] + h * a->dv_s[1];
