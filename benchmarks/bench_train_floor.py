@@ -64,6 +64,29 @@ def step_flops(trainer, batch) -> int:
     return counter.get_total_flops()
 
 
+class _KernelClock:
+    """Wall time spent in the attention kernel's calls (forward and backward), to split a
+    kernel-path step into attention and the rest (what the kernel cannot speed up)."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self._run = attention_kernel._run
+
+    def __enter__(self):
+        def timed(*args):
+            t = time.perf_counter()
+            try:
+                return self._run(*args)
+            finally:
+                self.seconds += time.perf_counter() - t
+
+        attention_kernel._run = timed
+        return self
+
+    def __exit__(self, *exc):
+        attention_kernel._run = self._run
+
+
 def measure(trainer, data, warmup: int, rounds: int) -> dict:
     config = trainer.model.config
     per_round = []
@@ -78,7 +101,11 @@ def measure(trainer, data, warmup: int, rounds: int) -> dict:
             saved = config._attn_implementation
             config._attn_implementation = PATHS[name]
             try:
-                t[name] = plain_loop(trainer, data, warmup)
+                with _KernelClock() as clock:
+                    start = time.perf_counter()
+                    t[name] = plain_loop(trainer, data, warmup)
+                    if name == "kernel":  # every step's, warm-up included, over the loop's time
+                        t["kernel_attention_share"] = clock.seconds / (time.perf_counter() - start)
             finally:
                 config._attn_implementation = saved
         per_round.append(t)
@@ -88,6 +115,7 @@ def measure(trainer, data, warmup: int, rounds: int) -> dict:
         "kernel_s": statistics.median(t["kernel"] for t in per_round),
         "sgemm_gflops": statistics.median(t["sgemm"] for t in per_round),
         "speedup": statistics.median(t["torch"] / t["kernel"] for t in per_round),
+        "kernel_attention_share": statistics.median(t["kernel_attention_share"] for t in per_round),
     }
 
 
@@ -152,14 +180,21 @@ def main() -> None:
                     "kernel_ms": m["kernel_s"] * 1e3,
                     "torch_x_floor": m["torch_s"] / floor_s,
                     "kernel_x_floor": m["kernel_s"] / floor_s,
-                    **{k: m[k] for k in ("sgemm_gflops", "speedup", "rounds")},
+                    # the kernel path's step without its attention calls, over the floor: what
+                    # the step would be if attention cost nothing
+                    "rest_x_floor": m["kernel_s"] * (1 - m["kernel_attention_share"]) / floor_s,
+                    **{
+                        k: m[k]
+                        for k in ("sgemm_gflops", "speedup", "kernel_attention_share", "rounds")
+                    },
                 }
                 results["rows"].append(row)
                 print(
                     f"{objective} ctx {context} threads {threads}: {flops / 1e9:.2f} GFLOP, "
                     f"sgemm {m['sgemm_gflops']:.0f} GFLOP/s, floor {row['floor_ms']:.0f} ms | "
                     f"torch {row['torch_ms']:.0f} ms ({row['torch_x_floor']:.1f}x) | "
-                    f"kernel {row['kernel_ms']:.0f} ms ({row['kernel_x_floor']:.1f}x) | "
+                    f"kernel {row['kernel_ms']:.0f} ms ({row['kernel_x_floor']:.1f}x, attention "
+                    f"{m['kernel_attention_share']:.0%}, rest {row['rest_x_floor']:.1f}x) | "
                     f"speed-up {m['speedup']:.2f}x",
                     flush=True,
                 )
