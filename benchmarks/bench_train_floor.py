@@ -39,6 +39,7 @@ from lhf_hf.collection.backend_verdict import cpu_model
 from lhf_hf.configs import TrainConfig
 from lhf_hf.modeling import attention_kernel, train_attention
 from lhf_hf.training import build_trainer
+from lhf_hf.utils.io import write_json_atomic
 
 PATHS = {"torch": train_attention.NAME, "kernel": attention_kernel.NAME}
 
@@ -189,6 +190,8 @@ def main() -> None:
                     },
                 }
                 results["rows"].append(row)
+                if args.json:  # after every row: a long grid cut short keeps what it measured
+                    write_json_atomic(results, args.json)
                 print(
                     f"{objective} ctx {context} threads {threads}: {flops / 1e9:.2f} GFLOP, "
                     f"sgemm {m['sgemm_gflops']:.0f} GFLOP/s, floor {row['floor_ms']:.0f} ms | "
@@ -199,10 +202,6 @@ def main() -> None:
                     flush=True,
                 )
             torch.set_num_threads(saved_threads)
-    if args.json:
-        from lhf_hf.utils.io import write_json_atomic
-
-        write_json_atomic(results, args.json)
     print(json.dumps([{k: v for k, v in r.items() if k != "rounds"} for r in results["rows"]]))
 
 

@@ -34,6 +34,16 @@ def resolve_attention_kernel(cfg: TrainConfig, config: ICRLConfig, device: torch
     ``kernel`` is asked for and cannot run)."""
     if cfg.attention_kernel == "torch":
         return "torch"
+    chosen = config._attn_implementation
+    if chosen not in (None, TORCH_ATTENTION, attention_kernel.NAME):
+        # a model config that names another attention (icrl_config(attn_implementation="sdpa")):
+        # the caller's choice, torch code
+        if cfg.attention_kernel == "kernel":
+            raise UserError(
+                f"TrainConfig.attention_kernel='kernel', but the model config asks for "
+                f"attn_implementation={chosen!r}"
+            )
+        return "torch"
     mixed = [k for k in ("bf16", "fp16") if cfg.training_args.get(k)]
     why = (
         f"training_args {mixed[0]}=True computes attention in autocast, which the kernel leaves to torch"
@@ -50,8 +60,10 @@ def resolve_attention_kernel(cfg: TrainConfig, config: ICRLConfig, device: torch
 
 def use_attention(model: torch.nn.Module, backend: str) -> None:
     """Make ``model`` (an ``ICRLModel``) compute attention with ``backend`` (``kernel`` or
-    ``torch``).  The choice is not saved in ``config.json`` (transformers does not serialise it): a
-    loaded checkpoint attends with the default ``lhf_sdpa``, the same function without dropout."""
-    model.config._attn_implementation = (
-        attention_kernel.NAME if backend == "kernel" else TORCH_ATTENTION
-    )
+    ``torch``; another implementation the model config named is left as it is).  The choice is not
+    saved in ``config.json`` (transformers does not serialise it): a loaded checkpoint attends with
+    the default ``lhf_sdpa``, the same function without dropout."""
+    if model.config._attn_implementation in (TORCH_ATTENTION, attention_kernel.NAME):
+        model.config._attn_implementation = (
+            attention_kernel.NAME if backend == "kernel" else TORCH_ATTENTION
+        )

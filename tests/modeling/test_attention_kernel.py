@@ -371,3 +371,7 @@ def test_no_compiler_means_no_kernel_and_auto_trains_with_torch(monkeypatch, tmp
         resolve_attention_kernel(cfg("kernel"), head_dim_4, torch.device("cpu"))
     mixed = TrainConfig(dataset="d", objective="ad", out="o", training_args={"bf16": True})
     assert resolve_attention_kernel(mixed, config, torch.device("cpu")) == "torch"
+    eager = grid_config("ad", attn_implementation="eager")  # the caller's choice stays
+    assert resolve_attention_kernel(cfg("auto"), eager, torch.device("cpu")) == "torch"
+    with pytest.raises(UserError, match="asks for attn_implementation='eager'"):
+        resolve_attention_kernel(cfg("kernel"), eager, torch.device("cpu"))
