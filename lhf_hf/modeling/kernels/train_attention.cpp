@@ -23,6 +23,10 @@
 // cryptographic or Philox stream: good enough for a dropout mask (tests check its keep rate, and
 // that heads, rows and seeds are uncorrelated), at ~8 vector ops per 16 weights.
 //
+// Tried and dropped: the backward over blocks of 2 or 4 query rows (sharing the loads of K^T, V^T
+// and the read-modify-write of dK^T, dV^T): 4-19 % more CPU time per score than one row at a time
+// (register pressure: D accumulators and 2 D broadcasts per row), BENCHMARKS.md.
+//
 // Build: lhf_hf/modeling/attention_kernel.py (g++ -O3 -march=native, cached per machine, like the
 // PPO kernel).  The torch reference: lhf_hf/modeling/train_attention.py (DropoutAttention).
 
