@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import tempfile
@@ -145,6 +146,9 @@ def main() -> None:
         "warmup": args.warmup,
         "rounds": args.rounds,
         "batch_size": args.batch_size,
+        # OMP_WAIT_POLICY=PASSIVE: on a loaded machine torch's 2-thread ops otherwise spin-wait
+        # for a descheduled peer (BENCHMARKS.md)
+        "env": {k: os.environ.get(k) for k in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS")},
         "rows": [],
     }
     saved_threads = torch.get_num_threads()

@@ -282,6 +282,21 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
             assert args["max_steps"] == 12 and args["seed"] == 0 and args["save_steps"] == 6
 
 
+@pytest.mark.skipif(attention_kernel.available() is not None, reason="no attention kernel here")
+def test_one_seed_is_one_run_with_the_attention_kernel(small_darkroom, tmp_path):
+    """The kernel's dropout masks come from torch's generator, seeded by TrainConfig.seed: the same
+    seed trains the same weights, another seed others (lightweight preset: attention dropout 0.1)."""
+    cfg = dict(dataset=str(small_darkroom.root), objective="ad", max_steps=3,
+               **{**TINY, "preset": "lightweight"}, attention_kernel="kernel")  # fmt: skip
+    a = train(TrainConfig(out=str(tmp_path / "a"), **cfg))
+    b = train(TrainConfig(out=str(tmp_path / "b"), **cfg))
+    c = train(TrainConfig(out=str(tmp_path / "c"), seed=1, **cfg))
+    wa, wb, wc = (load_file(m / "model.safetensors") for m in (a, b, c))
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert not all(torch.equal(wa[k], wc[k]) for k in wa)
+    assert json.loads((a / "train_config.json").read_text())["attention_kernel"] == "kernel"
+
+
 def test_last_checkpoint_is_the_newest_complete_one(tmp_path, capsys):
     assert last_checkpoint(tmp_path / "absent") is None and last_checkpoint(tmp_path) is None
     for step, state in [(2, "{}"), (10, "{}"), (11, '{"global_st'), (12, None)]:
