@@ -14,7 +14,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "lhf_hf"
 #: lowest first; a module may import from a lower layer or from its own subpackage
 LAYERS = [
     ["lhf_hf", "lhf_hf.constants", "lhf_hf.errors"],  # column and file names, the UserError type
-    ["lhf_hf.utils"],  # atomic io, versions, Hub access (repo id -> folder, uploads), templates
+    ["lhf_hf.utils"],  # atomic io, versions, Hub access, templates, C++ kernel builds
     ["lhf_hf.envs"],
     ["lhf_hf.configs"],  # validated config dataclasses, model presets and field rules (no torch)
     ["lhf_hf.modeling"],

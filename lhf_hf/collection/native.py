@@ -1,16 +1,10 @@
 """Build, load and call the C++ PPO-update kernel (``kernels/ppo_update.cpp``).
 
-The kernel is compiled on first use with the system's C++ compiler (``$CXX`` or ``g++``; ``-O3
--march=native``, so it must be built on the machine that runs it) into a per-user cache
-(``$LHF_HF_KERNEL_CACHE``, default ``~/.cache/lhf_hf/kernels``), keyed by the source, the flags, the
-compiler's version and what ``-march=native`` means on this CPU (the compiler's expansion of it;
-``$LHF_HF_KERNEL_MARCH`` builds another instruction set's path, see :func:`target_march`);
-the file is written under a temporary name and renamed, so concurrent builds are safe.  A library
-is loaded only from a private cache (owned by this user, writable by nobody else) and only when its
-SHA-256 equals the one recorded when it was built: a missing, truncated, corrupt or foreign file is
-rebuilt, never loaded (``dlopen`` runs a library's code, and a truncated one kills the process).  No compiler, or a failed build, raises :class:`KernelUnavailable` with the reason; the
-``auto`` gradients mode of :func:`lhf_hf.collection.ppo_backends.ppo_update` then falls back to the
-torch implementation.
+The kernel is compiled on first use and cached by ``lhf_hf.utils.native_build`` (``$CXX``,
+``$LHF_HF_KERNEL_CACHE``, ``$LHF_HF_KERNEL_MARCH``: a private cache, a library loaded only when its
+SHA-256 is the one recorded at its build).  No compiler, or a failed build, raises
+:class:`KernelUnavailable` with the reason; the ``auto`` gradients mode of
+:func:`lhf_hf.collection.ppo_backends.ppo_update` then falls back to the torch implementation.
 
 Threads: learners are independent, so ``[0, L)`` is split into contiguous pieces (8 per thread) that
 ``torch.get_num_threads()`` threads take in turn, one foreign call each; ctypes releases the GIL for
@@ -21,38 +15,25 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import hashlib
-import logging
-import os
-import re
-import shutil
-import subprocess
-import tempfile
 from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import torch
 
-from lhf_hf.errors import UserError, UserRuntimeError
-from lhf_hf.utils.io import sha256_file
+from lhf_hf.errors import UserError
+from lhf_hf.utils import native_build
+from lhf_hf.utils.native_build import (  # noqa: F401 (this module's API before the move)
+    FLAGS,
+    KernelUnavailable,
+    cache_dir,
+    private_cache_dir,
+    target_march,
+)
+from lhf_hf.utils.native_build import verified as _verified
 from lhf_hf.utils.signals import interrupts_ignored
-
-logger = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
 ABI_VERSION = 1
-FLAGS = (
-    "-O3",
-    "-std=gnu++17",
-    "-fPIC",
-    "-shared",
-    "-fno-math-errno",
-    "-mprefer-vector-width=512",
-)
-
-
-class KernelUnavailable(UserRuntimeError):
-    """The C++ kernel cannot be built or loaded here (the message says why)."""
 
 
 class PPOArgs(ctypes.Structure):
@@ -82,60 +63,9 @@ class ActArgs(ctypes.Structure):
     ]
 
 
-def cache_dir() -> Path:
-    return Path(
-        os.environ.get("LHF_HF_KERNEL_CACHE", Path.home() / ".cache" / "lhf_hf" / "kernels")
-    )
-
-
-def private_cache_dir() -> Path:
-    """``cache_dir()``, created 0700, after checking that nobody else can write libraries into it."""
-    path = cache_dir()
-    path.mkdir(parents=True, exist_ok=True, mode=0o700)
-    st = path.stat()
-    if st.st_uid != os.getuid() or st.st_mode & 0o022:
-        raise KernelUnavailable(
-            f"the kernel cache {path} is not private (owner uid {st.st_uid}, mode "
-            f"{oct(st.st_mode & 0o777)}): it must be yours and writable by you alone "
-            f"(chmod 700 {path}), or set $LHF_HF_KERNEL_CACHE to such a folder"
-        )
-    return path
-
-
-def target_march() -> str:
-    """The ``-march`` the kernel is built for: ``$LHF_HF_KERNEL_MARCH`` or ``native``.
-
-    Another value builds another instruction set's code path on this CPU (e.g. ``haswell``, AVX2 +
-    FMA, on an AVX-512 machine) to test and measure it where no such CPU is at hand; it is read at
-    a process's first build (which refuses a value that is not a ``-march`` name); empty is
-    ``native``."""
-    return os.environ.get("LHF_HF_KERNEL_MARCH") or "native"
-
-
 def _native_target(cxx: str, march: str = "native") -> str:
-    """The compiler's expansion of ``-march=MARCH`` (CPU model and every enabled feature)."""
-    proc = subprocess.run(
-        [cxx, f"-march={march}", "-Q", "--help=target"], capture_output=True, text=True
-    )
-    return proc.stdout
-
-
-def _verified(lib: Path) -> bool:
-    """The library exists and its bytes are the ones recorded when it was built."""
-    record = lib.with_name(lib.name + ".sha256")
-    try:
-        return record.read_text().strip() == sha256_file(lib)
-    except OSError:
-        return False
-
-
-def _compiler() -> str:
-    cxx = os.environ.get("CXX", "g++")
-    if shutil.which(cxx) is None:
-        raise KernelUnavailable(
-            f"no C++ compiler {cxx!r} on PATH (set $CXX); the torch implementation is used instead"
-        )
-    return cxx
+    """The compiler's expansion of ``-march=MARCH`` (part of the cache key; tests replace it)."""
+    return native_build.native_target(cxx, march)
 
 
 @functools.cache
@@ -145,48 +75,12 @@ def build(hidden: int = 64) -> Path:
         raise KernelUnavailable(
             f"the kernel needs a hidden width that is a multiple of 16, got {hidden}"
         )
-    cxx = _compiler()
-    march = target_march()
-    if not re.fullmatch(r"[A-Za-z0-9_.+-]+", march):
-        raise KernelUnavailable(f"$LHF_HF_KERNEL_MARCH must be a -march name, got {march!r}")
-    version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
-    flags = (*FLAGS, f"-march={march}", f"-DHID={hidden}")
-    key = hashlib.sha256(
-        "\0".join(
-            [
-                SOURCE.read_text(),
-                " ".join(flags),
-                version,
-                os.uname().machine,
-                _native_target(cxx, march),
-            ]
-        ).encode()
-    ).hexdigest()[:16]
-    out = private_cache_dir() / f"ppo_update-h{hidden}-{key}.so"
-    if _verified(out):
-        return out
-    if out.exists():
-        logger.warning("%s does not match its recorded SHA-256: rebuilding it", out)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".so.tmp")
-    os.close(fd)
-    try:
-        proc = subprocess.run([cxx, *flags, "-o", tmp, str(SOURCE)], capture_output=True, text=True)
-        if proc.returncode != 0:
-            origin = "" if march == "native" else f" for -march={march} ($LHF_HF_KERNEL_MARCH)"
-            raise KernelUnavailable(
-                f"building {SOURCE.name}{origin} failed:\n{proc.stderr[-2000:]}"
-            )
-        digest = sha256_file(Path(tmp))
-        os.replace(tmp, out)  # atomic: a concurrent build of the same key writes the same bytes
-        record = out.with_name(out.name + ".sha256")
-        fd, tmp_record = tempfile.mkstemp(dir=out.parent, suffix=".sha256.tmp")
-        with os.fdopen(fd, "w") as f:
-            f.write(digest + "\n")
-        os.replace(tmp_record, record)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out
+    return native_build.build_library(
+        SOURCE,
+        f"ppo_update-h{hidden}",
+        (f"-DHID={hidden}",),
+        describe_target=lambda cxx, march: _native_target(cxx, march),
+    )
 
 
 @functools.cache

@@ -37,6 +37,14 @@ REWARD_WEIGHTINGS: tuple[str, ...] = get_args(RewardWeighting)
 Attention = Literal["window", "band"]
 ATTENTIONS: tuple[str, ...] = get_args(Attention)
 
+# Which code computes the training attention (TrainConfig.attention_kernel): "kernel" = the C++
+# kernel (lhf_hf/modeling/attention_kernel.py: fused, dropout mask from a counter-based hash);
+# "torch" = torch ops (lhf_sdpa, lhf_hf/modeling/train_attention.py); "auto" = the kernel where it
+# builds and runs (CPU, head dim 8 or 16), else torch.  The two draw different dropout masks, so the
+# resolved value is part of a training's identity.
+AttentionKernel = Literal["auto", "kernel", "torch"]
+ATTENTION_KERNELS: tuple[str, ...] = get_args(AttentionKernel)
+
 # Backbone sizes.  "paper": the paper's table (4 layers, 4 heads, embedding 32, intermediate 128,
 # dropout 0.1); "lightweight": appendix "ICRL with lightweight models" (2/2/16/64); "tiny": tests.
 PRESETS: dict[str, dict] = {

@@ -14,6 +14,7 @@ from lhf_hf.utils.hub import validate_repo_id
 
 from .model import (
     Attention,
+    AttentionKernel,
     LabelPositions,
     ModelPreset,
     RewardWeighting,
@@ -82,6 +83,12 @@ class TrainConfig:
         docs/training.md compares the two (windows learn more per CPU-minute on Darkroom).
     sequence_length: transitions per training sequence with ``attention="band"``; None = 4 x the
         context length.
+    attention_kernel: which code computes attention in training: ``kernel`` (a C++ kernel, built
+        with the system's compiler on first use: scores, mask, softmax, dropout and the value
+        product fused per head, forward and backward), ``torch`` (torch ops, ``lhf_sdpa``) or
+        ``auto`` (the kernel where it builds and runs: CPU training, head dim 8 or 16; else torch).
+        The two draw different dropout masks from the seed, so the value that ran is recorded
+        (``lhf_train_identity.json``, the provenance's ``attention_kernel``).
     lr: peak learning rate (paper 1e-2), cosine decay to 0 after ``warmup_steps`` of linear warm-up.
     warmup_steps: steps of linear learning-rate warm-up from 0 (the paper's GPU runs: 1,000).
     weight_decay: AdamW weight decay (paper 0.01).
@@ -125,6 +132,7 @@ class TrainConfig:
     label_positions: LabelPositions | None = None
     attention: Attention = "window"
     sequence_length: int | None = None
+    attention_kernel: AttentionKernel = "auto"
     lr: float = 1e-2
     warmup_steps: int = 0
     weight_decay: float = 0.01

@@ -41,6 +41,7 @@ from lhf_hf.utils.progress import library_bars
 from lhf_hf.utils.versions import library_versions
 
 from .arguments import refused, resolve, training_arguments
+from .attention_backend import resolve_attention_kernel, use_attention
 from .card import MODEL_EVALS_FILE, plot_loss, write_model_card
 from .collators import make_collator
 from .model_config import (
@@ -63,14 +64,15 @@ _IDENTITY_FIELDS = ("objective", "preset", "context_length", "label_positions", 
                     "warmup_steps", "weight_decay", "beta1", "beta2", "max_grad_norm",
                     "dynamics_coef", "seed", "batch_size", "max_steps",
                     "state_encoding", "attention", "sequence_length", "reward_weighting",
-                    "training_args")  # fmt: skip
+                    "training_args", "attention_kernel")  # fmt: skip
 _MODEL_FIELDS = ("objective", "state_dim", "state_bins", "state_encoding", "attention", "action_dim",
                  "discrete_actions",
                  "context_length", "label_positions", "hidden_size", "intermediate_size",
                  "num_hidden_layers", "num_attention_heads", "dynamics_coef",
                  "reward_weighting")  # fmt: skip
 #: What identities written before a field existed mean by its absence.
-_BEFORE_FIELD = {"reward_weighting": "data", "training_args": {}}
+#: (attention_kernel: runs before the field trained with the torch path, ``lhf_sdpa``.)
+_BEFORE_FIELD = {"reward_weighting": "data", "training_args": {}, "attention_kernel": "torch"}
 PICKLED_TRAINING_ARGS = "training_args.bin"
 LOG_FILE = "training_log.json"
 LOSS_PLOT = "training_loss.png"
@@ -252,6 +254,8 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     args = training_arguments(cfg, world, progress)
     if args.world_size != world:
         raise RuntimeError(f"expected {world} processes, accelerate set up {args.world_size}")
+    attention_backend = resolve_attention_kernel(cfg, config, args.device)
+    use_attention(model, attention_backend)
     try:
         trainer = WindowTrainer(
             model=model,
@@ -286,6 +290,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
         "windows": len(windows),
         "sequence_length": length if config.attention == "band" else None,
         "reward_weighting": config.reward_weighting,  # resolved (``train`` keeps the flag as given)
+        "attention_kernel": attention_backend,  # resolved: kernel or torch (their masks differ)
         "world_size": world,
         "world_sizes": [[0, world]],  # with resumes at other world sizes: [first step, processes]
         "per_device_batch_size": cfg.batch_size // world,
@@ -305,6 +310,8 @@ def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> di
         | {
             "sequence_length": provenance.get("sequence_length"),
             "reward_weighting": config.reward_weighting,
+            # the code that ran, not the flag: auto and what it chose are the same run
+            "attention_kernel": provenance.get("attention_kernel", "torch"),
         },
         "model": {k: getattr(config, k) for k in _MODEL_FIELDS},
         "dataset_fingerprint": provenance["dataset"]["fingerprint"],

@@ -20,7 +20,7 @@ from lhf_hf.cli.main import main
 from lhf_hf.configs import FilterConfig, TrainConfig
 from lhf_hf.envs import get_spec
 from lhf_hf.filtering.select import filter_histories
-from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES, ICRLModel, icrl_config
+from lhf_hf.modeling import AUTO_MAP, MODEL_CODE_FILES, ICRLModel, attention_kernel, icrl_config
 from lhf_hf.modeling.remote_code import model_code
 from lhf_hf.training import build_trainer, check_model_env, model_config_for, train
 from lhf_hf.training.trainer import last_checkpoint
@@ -94,6 +94,9 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     assert prov["sequence_length"] == 160
     # so is the reward weighting (DICP on Darkroom: 'actions'); the flag is kept as given
     assert prov["reward_weighting"] == "actions" and prov["train"]["reward_weighting"] is None
+    # and the attention code that ran (auto: the kernel where it builds; attention_kernel.py)
+    kernel = "kernel" if attention_kernel.available() is None else "torch"
+    assert prov["attention_kernel"] == kernel and prov["train"]["attention_kernel"] == "auto"
     card = (out / "README.md").read_text()  # the card says how it was trained and evaluated
     assert "sequences of 160 transitions, band attention over the last 40" in card
     assert "reward loss weighting 'actions'" in card
@@ -261,6 +264,12 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
         ({"seed": 1}, r"seed: 0 -> 1"),
         ({"max_steps": 13}, r"max_steps: 12 -> 13"),
         ({"dataset": str(learned_darkroom.root)}, r"dataset: [0-9a-f]{16} -> [0-9a-f]{16}"),
+        # the torch path draws other dropout masks than the kernel's (attention_kernel.py)
+        *(
+            [({"attention_kernel": "torch"}, r"attention_kernel: 'kernel' -> 'torch'")]
+            if attention_kernel.available() is None
+            else []
+        ),
     ]:
         with pytest.raises(ValueError, match=f"different setup \\(.*{message}"):
             train(TrainConfig(out=str(part), resume=True, **{**cfg, **changed}))
@@ -271,6 +280,21 @@ def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path
         for folder in (out, out / "checkpoint-12"):
             args = json.loads((folder / "training_args.json").read_text())
             assert args["max_steps"] == 12 and args["seed"] == 0 and args["save_steps"] == 6
+
+
+@pytest.mark.skipif(attention_kernel.available() is not None, reason="no attention kernel here")
+def test_one_seed_is_one_run_with_the_attention_kernel(small_darkroom, tmp_path):
+    """The kernel's dropout masks come from torch's generator, seeded by TrainConfig.seed: the same
+    seed trains the same weights, another seed others (lightweight preset: attention dropout 0.1)."""
+    cfg = dict(dataset=str(small_darkroom.root), objective="ad", max_steps=3,
+               **{**TINY, "preset": "lightweight"}, attention_kernel="kernel")  # fmt: skip
+    a = train(TrainConfig(out=str(tmp_path / "a"), **cfg))
+    b = train(TrainConfig(out=str(tmp_path / "b"), **cfg))
+    c = train(TrainConfig(out=str(tmp_path / "c"), seed=1, **cfg))
+    wa, wb, wc = (load_file(m / "model.safetensors") for m in (a, b, c))
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert not all(torch.equal(wa[k], wc[k]) for k in wa)
+    assert json.loads((a / "train_config.json").read_text())["attention_kernel"] == "kernel"
 
 
 def test_last_checkpoint_is_the_newest_complete_one(tmp_path, capsys):
