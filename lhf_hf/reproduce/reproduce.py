@@ -28,6 +28,7 @@ from lhf_hf.filtering.run import run_filter
 from lhf_hf.filtering.select import CONFIG_FILE
 from lhf_hf.histories.derive import derive_half
 from lhf_hf.training import train
+from lhf_hf.training.attention_backend import planned_attention_kernel
 from lhf_hf.training.trainer import last_checkpoint
 from lhf_hf.utils.io import read_json, write_bytes_atomic, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import output_folder
@@ -111,14 +112,22 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
             for obj in exp.objectives:
                 for arm, sel in [("baseline", None), *arms]:
                     train_cfg = exp.train_config(obj, run, dataset="", selection=None, out="")
+                    # `auto` decided before the hash: the kernel and the torch path draw different
+                    # dropout masks, so the attention code is part of what the stage's name says
+                    attention = planned_attention_kernel(train_cfg)
                     tc = {k: v for k, v in train_cfg.to_dict().items() if k not in TRAIN_PLACES}
-                    if not tc["training_args"]:  # none: the hash of a stage from before the field
+                    tc["attention_kernel"] = attention
+                    # the hash of a stage from before a field: no Trainer arguments, the torch path
+                    if not tc["training_args"]:
                         del tc["training_args"]
+                    if attention == "torch":
+                        del tc["attention_kernel"]
                     tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
 
-                    def do_train(out: Path, obj=obj, run=run, src=data_stage, sel=sel) -> None:
+                    def do_train(out: Path, obj=obj, run=run, src=data_stage, sel=sel,
+                                 attention=attention) -> None:  # fmt: skip
                         model = out / "model"
                         resume = last_checkpoint(model) is not None
                         if model.is_dir() and not resume:
@@ -127,9 +136,11 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                             shutil.rmtree(model)
                         selection = str(sel.path(work) / "selection") if sel else None
                         data = str(src.path(work) / "data")
-                        train(exp.train_config(obj, run, dataset=data, selection=selection,
-                                               out=str(model), resume=resume),
-                              progress=progress)  # fmt: skip
+                        cfg = exp.train_config(obj, run, dataset=data, selection=selection,
+                                               out=str(model), resume=resume)  # fmt: skip
+                        train(
+                            dataclasses.replace(cfg, attention_kernel=attention), progress=progress
+                        )
 
                     reads = (data_stage,) if sel is None else (data_stage, sel)
                     tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train, reads,

@@ -9,10 +9,13 @@ import logging
 
 import torch
 
+from lhf_hf.configs.model import PRESETS
 from lhf_hf.configs.train import TrainConfig
 from lhf_hf.errors import UserError
 from lhf_hf.modeling import ICRLConfig, attention_kernel
 from lhf_hf.modeling.train_attention import NAME as TORCH_ATTENTION
+
+from .arguments import parse_training_args
 
 logger = logging.getLogger(__name__)
 
@@ -67,3 +70,21 @@ def use_attention(model: torch.nn.Module, backend: str) -> None:
         model.config._attn_implementation = (
             attention_kernel.NAME if backend == "kernel" else TORCH_ATTENTION
         )
+
+
+def planned_attention_kernel(cfg: TrainConfig) -> str:
+    """``cfg.attention_kernel`` decided before the data exist, by ``resolve_attention_kernel``'s
+    rules for a model of ``cfg.preset`` (``lhf reproduce`` names a training stage by it: the two
+    paths' masks differ, so a cached stage must say which one trained it)."""
+    if cfg.attention_kernel != "auto":
+        return cfg.attention_kernel
+    args = parse_training_args(cfg.training_args)
+    size = PRESETS[cfg.preset]
+    head_dim = size["hidden_size"] // size["num_attention_heads"]
+    if (
+        any(args.get(k) for k in ("bf16", "fp16"))
+        or torch.cuda.is_available()  # training runs on the GPU: the torch path
+        or head_dim not in attention_kernel.HEAD_DIMS
+    ):
+        return "torch"
+    return "kernel" if attention_kernel.available() is None else "torch"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -605,3 +606,41 @@ def test_the_collect_stage_is_named_by_the_resolved_ppo_backend(tmp_path, monkey
         assert all(s.config.get("ppo_backend", "torch") == backend for s in collect)
         hashes[backend] = {s.hash for s in collect}
     assert not hashes["kernel"] & hashes["torch"]
+
+
+def test_the_train_stage_is_named_by_the_attention_code_that_trains(tmp_path, monkeypatch):
+    """With attention_kernel `auto`, the C++ kernel trains where it builds and the torch path
+    elsewhere, and their dropout masks differ: the stage hash names the one planned (the torch
+    path keeps the hash of stages from before the field), and the training runs with it."""
+    import importlib
+
+    from lhf_hf.modeling import attention_kernel
+    from lhf_hf.training.attention_backend import planned_attention_kernel
+
+    rep = importlib.import_module("lhf_hf.reproduce.reproduce")  # the module, not the function
+    exp = load_experiment(_spec(tmp_path, TINY), "quick")
+    hashes = {}
+    for why_not in (None, "no compiler"):
+        monkeypatch.setattr(attention_kernel, "available", lambda w=why_not: w)
+        stages, _ = plan_stages(exp, tmp_path)
+        train = [s for s in stages if s.kind == "train"]
+        want = "kernel" if why_not is None else "torch"
+        assert all(s.config.get("attention_kernel", "torch") == want for s in train)
+        assert ("attention_kernel" in train[0].config) == (want == "kernel")
+        hashes[want] = {s.hash for s in train}
+    assert not hashes["kernel"] & hashes["torch"]
+    # what the stage's training is given: the planned code, never `auto`
+    ran = []
+    monkeypatch.setattr(rep, "train", lambda cfg, progress=True: ran.append(cfg.attention_kernel))
+    monkeypatch.setattr(attention_kernel, "available", lambda: None)
+    stages, _ = plan_stages(exp, tmp_path)
+    next(s for s in stages if s.kind == "train").fn(tmp_path / "stage")
+    assert ran == ["kernel"]
+    # settings the kernel leaves to torch are planned as torch (tiny's head dim 8 is the kernel's)
+    cfg = exp.train_config("ad", 0, dataset="", selection=None, out="")
+    assert planned_attention_kernel(cfg) == "kernel"
+    assert (
+        planned_attention_kernel(dataclasses.replace(cfg, training_args={"bf16": "true"}))
+        == "torch"
+    )
+    assert planned_attention_kernel(dataclasses.replace(cfg, attention_kernel="torch")) == "torch"
