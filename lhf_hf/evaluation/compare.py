@@ -19,6 +19,7 @@ import numpy as np
 from scipy import stats
 
 from lhf_hf.errors import NotFoundError, UserError
+from lhf_hf.training.card import is_seen
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import changed_since_written, output_folder
 
@@ -69,11 +70,10 @@ def backbone_of(r: dict) -> str:
     """The table row of a run: its objective, planning, and "seen tasks" when the model trained on
     some of the evaluated tasks (``lhf evaluate --allow-seen``), so such a row is never read as
     unseen-task ICRL."""
-    seen = r.get("task_label", "unseen tasks") != "unseen tasks"
     return (
         r["objective"].upper()
         + (" + plan" if r["config"].get("plan") else "")
-        + (" [seen tasks]" if seen else "")
+        + (" [seen tasks]" if is_seen(r) else "")
     )
 
 
