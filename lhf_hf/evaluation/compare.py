@@ -28,6 +28,8 @@ from .plots import plot_comparison
 
 
 def load_results(path: str) -> dict:
+    """An evaluation's results (its folder or its ``eval_results.json``), as ``compare`` reads
+    them: unchanged since written (its folder's manifest), then ``read_results``."""
     p = Path(path)
     f = p / RESULTS_FILE if p.is_dir() else p
     if not f.exists():
@@ -37,6 +39,12 @@ def load_results(path: str) -> dict:
             f"{f} changed since `lhf evaluate` wrote it (its folder's manifest says "
             "otherwise): not compared; `lhf verify` shows what changed"
         )
+    return read_results(f)
+
+
+def read_results(f: Path) -> dict:
+    """The results file ``f`` with the fields ``compare`` reads checked (``lhf verify`` checks
+    the manifest itself, so a changed file is reported once)."""
     try:
         r = read_json(f)
     except ValueError as exc:
