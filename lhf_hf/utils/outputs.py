@@ -25,7 +25,9 @@ evaluate, compare, reproduce):
   meanwhile, the run's unfinished artifact stays, said, and the error is the original one).  A
   killed process leaves the old artifact beside the new one (the next writer names it).
 - A run that fails after writing into a folder it started empty leaves it marked in progress
-  (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.
+  (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.  One that
+  fails before writing anything (a training before its first checkpoint) leaves nothing to resume:
+  a folder it created is removed, an empty one it was given is empty again (``DISCARDED``).
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ MARKER = ".lhf_output.json"
 #: (kind, folder) of every artifact this process completed (switched in), in order: an interrupt
 #: that lands after a switch is reported with what it did not undo (``lhf_hf.cli.main``).
 COMPLETED: list[tuple[str, Path]] = []
+#: (kind, folder, removed) of every artifact this process started and gave up before writing into
+#: it (an error or an interrupt; ``removed``: the folder was created for it and is gone, else it
+#: was given empty and is empty again): nothing to resume, which ``lhf_hf.cli.main`` says.
+DISCARDED: list[tuple[str, Path, bool]] = []
 
 
 class OutputError(UserError, FileExistsError):
@@ -527,6 +533,7 @@ def output_folder(
                     shutil.rmtree(real, ignore_errors=True)
                 else:
                     marker.unlink(missing_ok=True)
+                DISCARDED.append((kind, real, created))
             elif not was_empty:
                 _restore_marker(real, before)
             # else: a folder this run started empty holds part of an lhf artifact: its
