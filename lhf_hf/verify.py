@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from lhf_hf.errors import NotFoundError, UserError
-from lhf_hf.evaluation.compare import load_results
+from lhf_hf.evaluation.compare import read_results
 from lhf_hf.evaluation.evaluate import RESULTS_FILE as EVAL_RESULTS
 from lhf_hf.filtering.artifact import SelectionArtifact
 from lhf_hf.histories.artifact import HistoriesArtifact
@@ -50,11 +50,15 @@ def verify(path: str | Path) -> dict:
     artifact = CHECKS.get(kind) if kind else None
     if kind is None and (path / EVAL_RESULTS).is_file():  # an evaluation written before manifests
         kind = "evaluation"
-    if kind == "evaluation":  # its results as `lhf compare` reads them
-        try:
-            load_results(str(path))
-        except UserError as exc:
-            problems.append(str(exc))
+    if kind == "evaluation":  # its fields as `lhf compare` reads them (the manifest: above)
+        if not (path / EVAL_RESULTS).is_file():
+            if not any(p.startswith(f"{EVAL_RESULTS}:") for p in problems):
+                problems.append(f"{EVAL_RESULTS}: missing")
+        else:
+            try:
+                read_results(path / EVAL_RESULTS)
+            except UserError as exc:
+                problems.append(str(exc))
     elif artifact is None and kind is None:
         try:
             artifact = artifact_for(path)

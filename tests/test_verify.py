@@ -195,3 +195,47 @@ def test_an_evaluation_without_manifest_is_recognised_and_checked(tmp_path):
     assert "no .lhf_output.json" in r["notes"][0]
     (ev / "eval_results.json").write_text(json.dumps({**result, "mean_curve": [float("nan")]}))
     assert "not a finite number" in verify(ev)["problems"][0]
+
+
+def test_each_problem_is_printed_once(data, tmp_path, capsys):
+    """A changed meta file is the manifest's finding; the dataset's deep check (which every load
+    runs with the meta files against the manifest) does not report it again, nor does an
+    evaluation's results check repeat the manifest's "changed"."""
+    (data / C.STATS_PATH).write_text("{}")
+    r = verify(data)
+    assert r["problems"] == ["meta/stats.json: changed (SHA-256 differs from the recorded one)"]
+    assert main(["verify", str(data)]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out == [
+        f"{data} (dataset): 1 problem(s)",
+        "  - meta/stats.json: changed (SHA-256 differs from the recorded one)",
+    ]
+    with pytest.raises(DatasetFormatError, match="meta/stats.json: changed"):
+        load_histories(data)  # a reader still checks the meta files
+
+    from lhf_hf.utils.outputs import output_folder
+
+    result = {"config": {}, "objective": "ad", "env_id": "darkroom", "mean_curve": [1.0]}
+    with output_folder(tmp_path / "ev", "evaluation") as ev:
+        (ev / "eval_results.json").write_text(json.dumps(result))
+    (ev / "eval_results.json").write_text(json.dumps({**result, "mean_curve": [2.0]}))
+    changed = "eval_results.json: changed (SHA-256 differs from the recorded one)"
+    assert verify(ev)["problems"] == [changed]
+    (ev / "eval_results.json").unlink()
+    assert verify(ev)["problems"] == ["eval_results.json: missing"]
+
+
+def test_a_models_dataset_is_checked_with_its_meta_files(data, tmp_path):
+    """Verifying a model still checks its dataset's meta files against their manifest (the
+    dataset's deep check leaves them to the caller)."""
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.training import train
+
+    model = tmp_path / "m"
+    train(TrainConfig(dataset=str(data), objective="ad", out=str(model), preset="tiny",
+                      batch_size=4, context_length=20, max_steps=1, save_steps=1))  # fmt: skip
+    assert verify(model)["problems"] == []
+    (data / C.STATS_PATH).write_text("{}")
+    assert verify(model)["problems"] == [
+        f"its dataset {data}: meta/stats.json: changed (SHA-256 differs from the recorded one)"
+    ]

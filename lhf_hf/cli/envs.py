@@ -10,7 +10,7 @@ from lhf_hf.configs.commands import EnvsOptions
 
 from .flags import add_params, values
 
-HELP = "list environments (id, horizon, tasks, split sizes, spaces, optimal returns)"
+HELP = "list environments (id, horizon, tasks, split and validation sizes, spaces, optimal returns)"
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -69,6 +69,7 @@ def _format_table(rows: list[dict]) -> str:
         "horizon",
         "tasks",
         "train/test",
+        "validation",  # held-out train tasks (EnvSpec.validation_split): part of the train count
         "state space",
         "action space",
         "optimal return",
@@ -79,6 +80,7 @@ def _format_table(rows: list[dict]) -> str:
             str(r["horizon"]),
             str(r["num_tasks"]),
             f"{r['num_train_tasks']}/{r['num_test_tasks']}",
+            f"{r['num_validation_tasks']} of train",
             r["state_space"],
             r["action_space"],
             opt(r),

@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = EvalConfig(**values(args, args.fields))
     r = evaluate(cfg, progress=progress(args))
     print(
-        f"{r['env_id']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{plan_label(cfg).replace(' + ', ', ')}): "
+        f"{r['env_id']}, {r['task_label']} ({len(r['tasks'])} tasks{f' x {cfg.rollouts} rollouts' if cfg.rollouts > 1 else ''}, {cfg.episodes} episode{'s' * (cfg.episodes > 1)}{plan_label(cfg).replace(' + ', ', ')}): "
         f"mean return {r['mean_return']:.3f}, first {r['first_return']:.3f}, final {r['final_return']:.3f}"
         + (f", success {r['success_rate']:.3f}" if r["success_rate"] is not None else "")
         + f"  [{r['env_steps_per_s']:.0f} env-steps/s]"

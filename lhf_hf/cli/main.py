@@ -147,12 +147,17 @@ def _run(args: argparse.Namespace, program: bool) -> int:
 
 
 def _completed() -> str:
-    """What an interrupted command had already finished (complete, kept): said, not guessed."""
-    from lhf_hf.utils.outputs import COMPLETED  # deferred: heavy (pyarrow, via utils.io)
+    """What an interrupted command had already finished (complete, kept), and what it had not
+    written anything into yet (nothing to resume): said, not guessed."""
+    from lhf_hf.utils.outputs import COMPLETED, DISCARDED  # deferred: heavy (pyarrow, via utils.io)
 
-    if not COMPLETED:
-        return ""
-    return " (after it completed " + ", ".join(f"the {k} {p}" for k, p in COMPLETED) + ")"
+    said = []
+    if COMPLETED:
+        said.append("after it completed " + ", ".join(f"the {k} {p}" for k, p in COMPLETED))
+    for kind, path, removed in DISCARDED:
+        what = f"{path} is removed" if removed else f"{path} is empty again"
+        said.append(f"before the {kind} held anything to resume: {what}; run the command again")
+    return f" ({'; '.join(said)})" if said else ""
 
 
 #: What the machine refuses (a full disk, a name too long, no permission), not a bug of ours: one

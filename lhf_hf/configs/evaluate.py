@@ -18,6 +18,10 @@ PlanGate = Literal["always", "reward_seen"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 #: copies of every task in one batch: beyond this the batch (tasks x rollouts envs) is a mistake
 MAX_ROLLOUTS = 1000
+#: episodes per task: 100 times the paper's 100.  A rollout's stream positions (the cached context's
+#: RoPE table) and the returns ``eval_results.json`` keeps (tasks x rollouts x episodes) grow with
+#: every episode, so a mistyped count fails here, not after hours or out of memory.
+MAX_EPISODES = 10_000
 
 
 @dataclass(frozen=True)
@@ -34,7 +38,7 @@ class EvalConfig:
         indices "0,3,7".
     allow_seen: evaluate tasks the model was trained on (or a model that does not record its
         training tasks); without it they are refused.  Results, plot and card then say "seen tasks".
-    episodes: episodes per task (paper: 100), from an empty context.
+    episodes: episodes per task (paper: 100; at most 10,000), from an empty context.
     plan: DICP planning (beam search / greedy search) once the context is full.
     seed: seeds action sampling (and Meta-World resets).
     context: how the sliding context is kept (``lhf_hf.evaluation.context``): ``auto`` the model's
@@ -81,8 +85,12 @@ class EvalConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        if self.episodes < 1:
-            raise UserError(f"EvalConfig.episodes must be >= 1, got {self.episodes!r}")
+        if not 1 <= self.episodes <= MAX_EPISODES:
+            raise UserError(
+                f"EvalConfig.episodes (--episodes) must be between 1 and {MAX_EPISODES:,} (the paper "
+                "evaluates 100; the context's positions and the returns kept grow with every "
+                f"episode), got {self.episodes!r}"
+            )
         if not 1 <= self.rollouts <= MAX_ROLLOUTS:
             raise UserError(
                 f"EvalConfig.rollouts must be between 1 and {MAX_ROLLOUTS}, got {self.rollouts!r}"

@@ -23,6 +23,9 @@ from .model import (
 )
 from .types import check_types
 
+#: optimiser steps: 20 times the reference's 50,000, so that a mistyped count fails here, not after
+#: days; the trainer's log history (in memory and ``trainer_state.json``) grows with every step logged.
+MAX_STEPS = 1_000_000
 #: ``TrainingArguments`` fields that lhf sets from its own flags: ``training_args`` refuses them
 #: and names the flag (one place per setting).
 TRAINING_ARGS_FROM_FLAGS = {
@@ -70,7 +73,7 @@ class TrainConfig:
     selection: optional LHF selection (``lhf filter``), a folder or a Hub repo ``ORG/NAME[@REV]``:
         histories are drawn with its counts.
     preset: backbone size: ``paper`` (4/4/32/128), ``lightweight`` (2/2/16/64) or ``tiny`` (tests).
-    max_steps: optimiser steps (the reference: 50,000 at batch 512 on a GPU).
+    max_steps: optimiser steps (the reference: 50,000 at batch 512 on a GPU; at most 1,000,000).
     batch_size: windows per optimiser step over all processes (split evenly across them).
     context_length: transitions per window; None = the env's default (Darkroom 80, the other
         gridworlds 200, Meta-World 1000).
@@ -170,6 +173,13 @@ class TrainConfig:
         for name in ("max_steps", "batch_size", "save_steps", "logging_steps"):
             if getattr(self, name) < 1:
                 raise bad(name, "must be >= 1")
+        if self.max_steps > MAX_STEPS:
+            raise bad(
+                "max_steps",
+                f"(--max-steps) must be at most {MAX_STEPS:,} (20 times the reference's 50,000; "
+                "the trainer keeps a log entry per --logging-steps steps, in memory and in "
+                "trainer_state.json)",
+            )
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise bad("lr", "must be > 0")
         if self.seed < 0:

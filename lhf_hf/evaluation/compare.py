@@ -19,6 +19,7 @@ import numpy as np
 from scipy import stats
 
 from lhf_hf.errors import NotFoundError, UserError
+from lhf_hf.training.card import is_seen
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
 from lhf_hf.utils.outputs import changed_since_written, output_folder
 
@@ -27,6 +28,8 @@ from .plots import plot_comparison
 
 
 def load_results(path: str) -> dict:
+    """An evaluation's results (its folder or its ``eval_results.json``), as ``compare`` reads
+    them: unchanged since written (its folder's manifest), then ``read_results``."""
     p = Path(path)
     f = p / RESULTS_FILE if p.is_dir() else p
     if not f.exists():
@@ -36,6 +39,12 @@ def load_results(path: str) -> dict:
             f"{f} changed since `lhf evaluate` wrote it (its folder's manifest says "
             "otherwise): not compared; `lhf verify` shows what changed"
         )
+    return read_results(f)
+
+
+def read_results(f: Path) -> dict:
+    """The results file ``f`` with the fields ``compare`` reads checked (``lhf verify`` checks
+    the manifest itself, so a changed file is reported once)."""
     try:
         r = read_json(f)
     except ValueError as exc:
@@ -69,11 +78,10 @@ def backbone_of(r: dict) -> str:
     """The table row of a run: its objective, planning, and "seen tasks" when the model trained on
     some of the evaluated tasks (``lhf evaluate --allow-seen``), so such a row is never read as
     unseen-task ICRL."""
-    seen = r.get("task_label", "unseen tasks") != "unseen tasks"
     return (
         r["objective"].upper()
         + (" + plan" if r["config"].get("plan") else "")
-        + (" [seen tasks]" if seen else "")
+        + (" [seen tasks]" if is_seen(r) else "")
     )
 
 

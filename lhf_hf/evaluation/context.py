@@ -33,7 +33,7 @@ import torch
 from transformers import DynamicCache
 
 from lhf_hf.errors import UserError
-from lhf_hf.modeling.attention import band_mask
+from lhf_hf.modeling.attention import band_mask, token_windows
 
 from .decode import LeanLlama, supported
 
@@ -77,11 +77,10 @@ class Context:
         self.lean = LeanLlama(model) if use_lean else None
         c = model.config
         self.dicp = c.objective == "dicp"
-        # DICP: a window of K transitions ends with the transition token whose action is predicted,
-        # so it holds 2K - 1 tokens before the query-action token of the new action is added.
-        self.max_tokens = max_tokens or (
-            2 * c.context_length - 1 if self.dicp else c.context_length
-        )
+        # a transition token's window (``token_windows``; DICP: a window of K transitions ends with
+        # the transition token whose action is predicted, 2K - 1 tokens before the query-action
+        # token of the new action is added)
+        self.max_tokens = max_tokens or int(token_windows(c.context_length, self.dicp, 1)[0])
         self.cache: DynamicCache | list | None = None  # list of WindowKV with the lean engine
         self.embeds: torch.Tensor | None = None  # (B, L, D) recompute / window modes
         self.pos = 0  # stream position of the next token

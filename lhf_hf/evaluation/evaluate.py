@@ -147,7 +147,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         "tasks": tasks,
         # the evaluated tasks the model trained on ([] = all unseen; None = not recorded)
         "seen_tasks": seen,
-        "task_label": seen_label(seen, len(tasks)),
+        "task_label": seen_label(seen, len(tasks), cfg.tasks),
         "objective": mc.objective,
         "model": {
             "path": source_of(cfg.model, model_dir),
@@ -181,10 +181,17 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
     plot_eval_curve(
         {f"{mc.objective.upper()}{plan_label(cfg)}": res.returns},
         out / CURVE_FILE,
-        title=f"{env_id}: {len(tasks)} {cfg.tasks} tasks, {results['task_label']}, in context",
+        title=_curve_title(env_id, len(tasks), cfg.tasks, results["task_label"]),
         optimal=optimal,
     )
     return results, model_dir
+
+
+def _curve_title(env_id: str, num_tasks: int, tasks: str, label: str) -> str:
+    """``darkroom: 8 test tasks, unseen tasks, in context``; the label once where it names the
+    tasks already (``8 validation tasks, in context``)."""
+    what = f"{num_tasks} {tasks} tasks"
+    return f"{env_id}: {what}{'' if label == f'{tasks} tasks' else f', {label}'}, in context"
 
 
 def _add_to_model_card(model_dir: Path, results: dict) -> None:

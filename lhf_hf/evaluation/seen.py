@@ -72,12 +72,16 @@ def check_unseen(
     return seen
 
 
-def seen_label(seen: list[int] | None, num_tasks: int) -> str:
-    """How an evaluation's task set is named in its plot, card and table: unseen or seen."""
+def seen_label(seen: list[int] | None, num_tasks: int, part: str | None = None) -> str:
+    """How an evaluation's task set is named in its plot, card and table: seen (a label starting
+    with "seen tasks", ``lhf_hf.training.card.is_seen``) or not; tasks none of which the model
+    trained on are "unseen tasks", or "validation tasks" where ``part`` (``EvalConfig.tasks``)
+    names them so: held-out train tasks, where tuning is done, not the unseen test tasks results
+    are reported on."""
     if seen is None:
         return "seen tasks (training tasks not recorded)"
     if not seen:
-        return "unseen tasks"
+        return "validation tasks" if part == "validation" else "unseen tasks"
     if len(seen) == num_tasks:
         return "seen tasks"
     return f"seen tasks ({len(seen)} of {num_tasks})"

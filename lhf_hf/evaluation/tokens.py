@@ -4,9 +4,11 @@
 Why: the model's embedders build their features with ~25 small torch ops (one-hot encodings, masks,
 casts, a concatenation); for 8 tasks and one token that is ~0.25 ms of dispatch per step, a fifth of
 an AD rollout step once the decoder is lean (profiled).  Here the same feature vector is
-written into one preallocated array by index and multiplied by the same weights.  The feature layout
-is the model's (``modeling_icrl.py`` module docstring); the test pins the two to each other for
-integer and real-valued states, discrete and continuous actions.
+written into one preallocated array by index and multiplied by the same weights.  Where each part
+goes is read from the model's config (``ICRLConfig.transition_layout`` / ``query_layout``, the one
+definition of the layout); how a state or an action is encoded is written again here in numpy, and the
+tests pin it to the model's ``encode_states`` / ``encode_actions`` for integer and real-valued
+states, discrete and continuous actions.
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ class StepTokens:
         c = model.config
         self.bins, self.S, self.A = c.state_bins, c.state_dim, c.action_dim
         self.discrete = c.discrete_actions
-        self.sf = model.state_features  # cells, S * bins (one-hot per coordinate) or S
         self.cells = c.cell_encoded
+        self.t_layout, self.q_layout = c.transition_layout, c.query_layout  # part -> slice
         self.dtype = model.embed_transition.weight.dtype  # computed in float32, returned in this
 
         def weights(linear) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +40,7 @@ class StepTokens:
             self.w_q, self.b_q = weights(model.embed_query_action)
 
     def _states(self, out: np.ndarray, states: np.ndarray) -> None:
-        """Write the state features of ``states`` (B, S) into ``out`` (B, sf), zero on entry."""
+        """Write the state features of ``states`` (B, S) into ``out`` (B, S'), zero on entry."""
         if not self.bins:
             out[:] = states
             return
@@ -60,30 +62,38 @@ class StepTokens:
         else:
             out[:] = actions
 
-    def transition(self, states: np.ndarray, prev: tuple | None) -> torch.Tensor:
-        """Transition tokens (B, 1, D) for ``states`` (B, S) after ``prev`` = (state, action,
-        reward, done) of the step before (None at the start of a stream: those features stay 0)."""
-        B, sf, A = len(states), self.sf, self.A
-        feats = np.zeros((B, 2 * sf + A + 3), np.float32)  # [s_prev, a_prev, r, d, has_prev, s]
+    def transition_features(self, states: np.ndarray, prev: tuple | None) -> np.ndarray:
+        """Transition tokens' feature vectors (B, F) for ``states`` (B, S) after ``prev`` = (state,
+        action, reward, done) of the step before (None at the start of a stream: those stay 0)."""
+        at = self.t_layout
+        feats = np.zeros((len(states), self.w_t.shape[0]), np.float32)  # (B, F)
         if prev is not None:
             p_state, p_action, p_reward, p_done = prev
-            self._states(feats[:, :sf], np.asarray(p_state))
-            self._actions(feats[:, sf : sf + A], np.asarray(p_action))
-            feats[:, sf + A] = p_reward
-            feats[:, sf + A + 1] = p_done
-            feats[:, sf + A + 2] = 1.0
-        self._states(feats[:, sf + A + 3 :], np.asarray(states))
-        return self._out(feats @ self.w_t + self.b_t)
+            self._states(feats[:, at["prev_state"]], np.asarray(p_state))
+            self._actions(feats[:, at["prev_action"]], np.asarray(p_action))
+            feats[:, at["prev_reward"]] = np.reshape(p_reward, (-1, 1))  # (B, 1)
+            feats[:, at["prev_done"]] = np.reshape(p_done, (-1, 1))
+            feats[:, at["has_prev"]] = 1.0
+        self._states(feats[:, at["state"]], np.asarray(states))
+        return feats
+
+    def transition(self, states: np.ndarray, prev: tuple | None) -> torch.Tensor:
+        """Transition tokens (B, 1, D); arguments as ``transition_features``."""
+        return self._out(self.transition_features(states, prev) @ self.w_t + self.b_t)
+
+    def query_features(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """DICP query-action tokens' feature vectors (B, F) for the action taken in each state."""
+        if self.q_layout is None:
+            raise UserError("query-action tokens exist for DICP models only")
+        at = self.q_layout
+        feats = np.zeros((len(states), self.w_q.shape[0]), np.float32)  # (B, F)
+        self._states(feats[:, at["state"]], np.asarray(states))
+        self._actions(feats[:, at["action"]], np.asarray(actions))
+        return feats
 
     def query(self, states: np.ndarray, actions: np.ndarray) -> torch.Tensor:
         """DICP query-action tokens (B, 1, D) for the action taken in each state."""
-        if self.w_q is None:
-            raise UserError("query-action tokens exist for DICP models only")
-        B, sf = len(states), self.sf
-        feats = np.zeros((B, sf + self.A), np.float32)  # [s, a]
-        self._states(feats[:, :sf], np.asarray(states))
-        self._actions(feats[:, sf:], np.asarray(actions))
-        return self._out(feats @ self.w_q + self.b_q)
+        return self._out(self.query_features(states, actions) @ self.w_q + self.b_q)
 
     def _out(self, tokens: np.ndarray) -> torch.Tensor:
         t = torch.from_numpy(tokens[:, None])  # (B, D) -> (B, 1, D)

@@ -28,7 +28,8 @@ class HistoriesArtifact(HubArtifact):
 
     @classmethod
     def verify(cls, path: Path) -> list[str]:
-        """Every data file hashed against the fingerprint; every task's returns recomputed."""
+        """Every data file hashed against the fingerprint; every task's returns recomputed (the
+        manifest is its caller's: ``lhf verify`` and ``lhf push`` check every file of it)."""
         try:
             return check_dataset(HistoryDataset(path), full=True)
         except (ValueError, OSError, KeyError) as exc:

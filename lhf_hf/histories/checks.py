@@ -1,10 +1,12 @@
 """Consistency checks of a learning-history dataset against its own records.
 
-``quick`` (run by every ``load_histories``): every data file's footer (rows and columns) against
-``info.json``; the histories table (task set, histories per task, unique indices, finite returns of
+``quick`` (run by every ``load_histories``): the meta files against the folder's manifest; every
+data file's footer (rows and columns) against ``info.json``; the histories table (task set, histories per task, unique indices, finite returns of
 the right length) and the episodes table against the info totals; and, for the first task, the
-episode returns recomputed from the frames' rewards.  ``full`` (``lhf verify``) also hashes every
-data file against the recorded fingerprint and recomputes the returns of every task.
+episode returns recomputed from the frames' rewards.  ``full`` (``lhf verify``, ``lhf push``) also
+hashes every data file against the recorded fingerprint and recomputes the returns of every task,
+and leaves the manifest to its caller, which checks every file of it (so a changed meta file is
+reported once, not by both).
 """
 
 from __future__ import annotations
@@ -119,7 +121,7 @@ def _returns_of_task(ds, hist: pa.Table, task: int) -> list[str]:
     return []
 
 
-def _meta_files(ds) -> list[str]:
+def meta_problems(ds) -> list[str]:
     """The small meta files (tables, info, stats) against the manifest recorded when the dataset
     was written: cheap enough for every load (the data files are hashed by ``lhf verify``)."""
     kind, problems = check_manifest(ds.root, prefix="meta/")
@@ -129,8 +131,9 @@ def _meta_files(ds) -> list[str]:
 
 
 def check_dataset(ds, full: bool = False) -> list[str]:
-    """Problems of dataset ``ds`` (an empty list when it is consistent); see the module docstring."""
-    problems = _meta_files(ds) + _footers(ds) + _tables(ds)
+    """Problems of dataset ``ds`` (an empty list when it is consistent); see the module docstring.
+    ``full``: the deep check, run beside a check of the whole manifest (``check_manifest``)."""
+    problems = ([] if full else meta_problems(ds)) + _footers(ds) + _tables(ds)
     if problems:
         return problems
     tasks = [int(t) for t in ds.lhf["tasks"]]

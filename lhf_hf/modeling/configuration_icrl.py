@@ -22,6 +22,12 @@ from lhf_hf.configs.model import (
 )
 from lhf_hf.errors import UserError
 
+#: The parts of a transition token's feature vector, in order (``modeling_icrl`` module docstring):
+#: the step before (all zero where there is none) and the state the next action is taken from.
+TRANSITION_FEATURES = ("prev_state", "prev_action", "prev_reward", "prev_done", "has_prev", "state")
+#: The parts of a DICP query-action token's feature vector, in order: a state and the action taken in it.
+QUERY_FEATURES = ("state", "action")
+
 
 @strict
 class ICRLConfig(LlamaConfig):
@@ -179,12 +185,45 @@ class ICRLConfig(LlamaConfig):
         return bool(self.state_bins) and self.state_encoding == "cells"
 
     @property
+    def state_features(self) -> int:
+        """Width of an encoded state: ``cells`` (one cell one-hot), ``state_dim * state_bins`` (one-hot
+        per coordinate) or ``state_dim`` (real-valued states as they are)."""
+        if self.cell_encoded:
+            return self.cells
+        return self.state_dim * self.state_bins if self.state_bins else self.state_dim
+
+    def _feature_slices(self, parts: tuple[str, ...]) -> dict[str, slice]:
+        widths = {"action": self.action_dim, "reward": 1, "done": 1, "has_prev": 1}
+        widths["state"] = self.state_features
+        layout, start = {}, 0
+        for name in parts:
+            width = widths[name.removeprefix("prev_")]
+            layout[name] = slice(start, start + width)
+            start += width
+        return layout
+
+    @property
+    def transition_layout(self) -> dict[str, slice]:
+        """Where each part of ``TRANSITION_FEATURES`` lies in a transition token's feature vector,
+        in order; the last slice's stop is the vector's width.  The one definition of the layout:
+        the model's embedder (``ICRLModel.transition_features``) and the rollout's numpy embedder
+        (``lhf_hf.evaluation.tokens``) both build their vectors from it."""
+        return self._feature_slices(TRANSITION_FEATURES)
+
+    @property
+    def query_layout(self) -> dict[str, slice] | None:
+        """As ``transition_layout``, for DICP's query-action token (``QUERY_FEATURES``); None for
+        the objectives without one."""
+        return self._feature_slices(QUERY_FEATURES) if self.objective == "dicp" else None
+
+    @property
     def tokens_per_transition(self) -> int:
         """DICP interleaves a query-action token after every transition token."""
         return 2 if self.objective == "dicp" else 1
 
     @property
     def max_tokens(self) -> int:
+        """Tokens of a window of ``context_length`` transitions."""
         return self.context_length * self.tokens_per_transition
 
 

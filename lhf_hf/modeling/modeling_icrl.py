@@ -4,6 +4,8 @@ Token layout (one token per transition, state first).  Token ``j`` of a window e
 
     [prev_state s_{j-1}, prev_action a_{j-1}, prev_reward r_{j-1}, prev_done d_{j-1}, has_prev, state s_j]
 
+(``ICRLConfig.transition_layout``: where each part lies, the one definition every embedder follows)
+
 where ``s_j`` is the state the next action is taken from: inside an episode ``s_j`` is the previous
 transition's next state; after an episode end it is the new episode's start state (the true final
 state stays a DICP target, never an input).  Every token is therefore a query for ``a_j``: AD labels
@@ -34,7 +36,7 @@ from transformers.models.llama.modeling_llama import LlamaPreTrainedModel
 from lhf_hf.errors import UserError
 
 from .attention import band_mask, token_windows
-from .configuration_icrl import ICRLConfig
+from .configuration_icrl import QUERY_FEATURES, TRANSITION_FEATURES, ICRLConfig
 from .train_attention import NAME as TRAIN_ATTENTION  # registers the attention function
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0  # Gaussian head: keeps the NLL finite early in training
@@ -81,6 +83,11 @@ class ICRLOutput(ModelOutput):
     backbone_cache: object | None = None
 
 
+def _width(layout: dict[str, slice]) -> int:
+    """The width of a feature vector: the stop of its layout's last part."""
+    return list(layout.values())[-1].stop
+
+
 class ICRLPreTrainedModel(LlamaPreTrainedModel):
     config_class = ICRLConfig
     base_model_prefix = "icrl"
@@ -102,20 +109,18 @@ class ICRLModel(ICRLPreTrainedModel):
         # parameter would break DistributedDataParallel's gradient reduction.
         self.backbone.embed_tokens = None
         D = config.hidden_size
-        s_in = self.state_features
-        a_in = config.action_dim  # one-hot (discrete) or the action vector (continuous)
-        self.embed_transition = nn.Linear(s_in + a_in + 3 + s_in, D)
+        # feature widths: the stop of the last part of each layout
+        self.embed_transition = nn.Linear(_width(config.transition_layout), D)
         self.embed_dropout = nn.Dropout(config.embedding_dropout)
         A = config.action_dim
         self.action_head = nn.Linear(D, A if config.discrete_actions else 2 * A)
         if config.objective == "dicp":
-            self.embed_query_action = nn.Linear(s_in + a_in, D)
+            self.embed_query_action = nn.Linear(_width(config.query_layout), D)
             rv = config.reward_values
             self.reward_head = nn.Linear(D, len(rv) if rv else 1)  # classes, or a regression
             self.return_head = nn.Linear(D, 1)
-            S, bins = config.state_dim, config.state_bins
-            n_out = config.cells if config.cell_encoded else S * bins if bins else S
-            self.next_state_head = nn.Linear(D, n_out)
+            # logits per cell, per coordinate's bin, or the real-valued state: an encoded state's width
+            self.next_state_head = nn.Linear(D, config.state_features)
         self.post_init()
 
     # ------------------------------------------------------------------ encoders
@@ -126,10 +131,8 @@ class ICRLModel(ICRLPreTrainedModel):
 
     @property
     def state_features(self) -> int:
-        c = self.config
-        if c.cell_encoded:
-            return c.cells
-        return c.state_dim * c.state_bins if c.state_bins else c.state_dim
+        """Width of an encoded state (``ICRLConfig.state_features``)."""
+        return self.config.state_features
 
     def cell_of(self, states: torch.Tensor) -> torch.Tensor:
         """(..., S) integer coordinates -> (...) cell index, row-major (clamped to the grid)."""
@@ -163,28 +166,40 @@ class ICRLModel(ICRLPreTrainedModel):
         return actions.to(self._dtype)
 
     # ------------------------------------------------------------------ pieces (used by planners too)
+    def transition_features(
+        self, states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
+    ) -> torch.Tensor:
+        """Transition tokens' feature vectors (B, T, F), parts in ``TRANSITION_FEATURES`` order
+        (``ICRLConfig.transition_layout``)."""
+        keep = has_prev.to(self._dtype).unsqueeze(-1)  # (B, T, 1): zero the missing previous step
+        parts = {
+            "prev_state": self.encode_states(prev_states) * keep,  # (B, T, S')
+            "prev_action": self.encode_actions(prev_actions) * keep,  # (B, T, A)
+            "prev_reward": prev_rewards.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+            "prev_done": prev_dones.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
+            "has_prev": keep,  # (B, T, 1)
+            "state": self.encode_states(states),  # (B, T, S')
+        }
+        return torch.cat([parts[name] for name in TRANSITION_FEATURES], dim=-1)  # (B, T, F)
+
     def embed_transitions(
         self, states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
     ) -> torch.Tensor:
         """Transition tokens (B, T, D); see the module docstring for the layout."""
-        keep = has_prev.to(self._dtype).unsqueeze(-1)  # (B, T, 1): zero the missing previous step
-        feats = torch.cat(
-            [
-                self.encode_states(prev_states) * keep,  # (B, T, S')
-                self.encode_actions(prev_actions) * keep,  # (B, T, A)
-                prev_rewards.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
-                prev_dones.to(self._dtype).unsqueeze(-1) * keep,  # (B, T, 1)
-                keep,  # (B, T, 1)
-                self.encode_states(states),  # (B, T, S')
-            ],
-            dim=-1,
-        )
+        feats = self.transition_features(
+            states, prev_states, prev_actions, prev_rewards, prev_dones, has_prev
+        )  # (B, T, F)
         return self.embed_transition(feats)  # (B, T, D)
+
+    def query_features(self, states, actions) -> torch.Tensor:
+        """DICP query-action tokens' feature vectors (B, T, F), parts in ``QUERY_FEATURES`` order
+        (``ICRLConfig.query_layout``)."""
+        parts = {"state": self.encode_states(states), "action": self.encode_actions(actions)}
+        return torch.cat([parts[name] for name in QUERY_FEATURES], dim=-1)  # (B, T, F)
 
     def embed_query_actions(self, states, actions) -> torch.Tensor:
         """DICP query-action tokens (B, T, D) from the state and the action taken in it."""
-        feats = torch.cat([self.encode_states(states), self.encode_actions(actions)], dim=-1)
-        return self.embed_query_action(feats)  # (B, T, D)
+        return self.embed_query_action(self.query_features(states, actions))  # (B, T, D)
 
     def run_backbone(
         self,

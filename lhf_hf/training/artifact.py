@@ -10,6 +10,7 @@ from transformers import AutoConfig
 from lhf_hf import constants as C
 from lhf_hf.errors import UserError
 from lhf_hf.histories.artifact import HistoriesArtifact
+from lhf_hf.histories.checks import meta_problems
 from lhf_hf.histories.reader import HistoryDataset
 from lhf_hf.modeling import load_model
 from lhf_hf.modeling.remote_code import model_code, with_auto_map
@@ -90,8 +91,10 @@ class CheckpointArtifact(HubArtifact):
                     f"its dataset {source} changed since training (fingerprint "
                     f"{str(data.get('fingerprint'))[:16]} -> {now[:16]})"
                 ]
-            # the dataset's own deepest check: frames against the fingerprint it records
-            return [f"its dataset {source}: {p}" for p in HistoriesArtifact.verify(source)]
+            # the dataset's meta files against its manifest (as every load checks them), then its
+            # own deepest check (frames against the fingerprint it records)
+            problems = meta_problems(HistoryDataset(source)) + HistoriesArtifact.verify(source)
+            return [f"its dataset {source}: {p}" for p in problems]
         return []
 
     @classmethod

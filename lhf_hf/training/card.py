@@ -82,8 +82,11 @@ def eval_section(evaluations: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _is_seen(e: dict) -> bool:
-    return e.get("task_label", "unseen tasks") != "unseen tasks"
+def is_seen(e: dict) -> bool:
+    """Whether an evaluation (its results or its card entry) is on tasks the model trained on:
+    its ``task_label`` starts with "seen tasks" (``lhf_hf.evaluation.seen.seen_label``; the
+    others are "unseen tasks" and "validation tasks")."""
+    return e.get("task_label", "unseen tasks").startswith("seen tasks")
 
 
 def model_index(evaluations: list[dict]) -> list:
@@ -107,9 +110,9 @@ def model_index(evaluations: list[dict]) -> list:
                 task_name="in-context reinforcement learning",
                 dataset_type=e["env_id"],
                 dataset_name=f"{e['env_id']} ({e['tasks']} tasks, split {e['split_seed']}"
-                + (f", {e['task_label']})" if _is_seen(e) else ")"),
+                + (f", {e['task_label']})" if is_seen(e) else ")"),
                 dataset_config=f"{e['tasks']}-split-{e['split_seed']}"
-                + ("-seen" if _is_seen(e) else ""),
+                + ("-seen" if is_seen(e) else ""),
                 metric_type="mean_reward",
                 metric_name=f"{episodes} ({', '.join(setting)})" if setting else episodes,
                 metric_value=round(e["mean_return"], 4),

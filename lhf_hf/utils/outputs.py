@@ -4,7 +4,8 @@ One policy for every command that writes a folder (collect, derive, filter, mate
 evaluate, compare, reproduce):
 
 - A folder is written only while this process holds its lock (``fcntl.flock`` on ``.NAME.lock``
-  beside it, holding the writer's PID): a second writer gets an error naming that PID.
+  beside it, holding the writer's PID, deleted when the writer ends): a second writer gets an
+  error naming that PID.
 - An empty or missing folder is used as is.  A non-empty one only when it is an artifact of the same
   kind (``.lhf_output.json`` says so; folders written before the marker are recognised by their
   files), and then only with ``resume`` (continue it) or ``overwrite`` (replace it).  Anything else
@@ -24,7 +25,9 @@ evaluate, compare, reproduce):
   meanwhile, the run's unfinished artifact stays, said, and the error is the original one).  A
   killed process leaves the old artifact beside the new one (the next writer names it).
 - A run that fails after writing into a folder it started empty leaves it marked in progress
-  (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.
+  (the marker without a manifest): ``resume`` continues it, ``overwrite`` replaces it.  One that
+  fails before writing anything (a training before its first checkpoint) leaves nothing to resume:
+  a folder it created is removed, an empty one it was given is empty again (``DISCARDED``).
 """
 
 from __future__ import annotations
@@ -48,6 +51,10 @@ MARKER = ".lhf_output.json"
 #: (kind, folder) of every artifact this process completed (switched in), in order: an interrupt
 #: that lands after a switch is reported with what it did not undo (``lhf_hf.cli.main``).
 COMPLETED: list[tuple[str, Path]] = []
+#: (kind, folder, removed) of every artifact this process started and gave up before writing into
+#: it (an error or an interrupt; ``removed``: the folder was created for it and is gone, else it
+#: was given empty and is empty again): nothing to resume, which ``lhf_hf.cli.main`` says.
+DISCARDED: list[tuple[str, Path, bool]] = []
 
 
 class OutputError(UserError, FileExistsError):
@@ -239,42 +246,85 @@ def changed_since_written(folder: str | Path, names: Iterable[str]) -> list[str]
     return []
 
 
-@contextmanager
-def _lock(out: Path) -> Iterator[None]:
-    lock_path = out.parent / f".{out.name}.lock"
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as exc:
-        raise OutputError(
-            f"cannot write the output folder {out}: {exc.strerror} ({exc.filename})"
-        ) from None
-    try:
+def _acquire(path: Path, wait: bool) -> int:
+    """An open descriptor of the lock file ``path`` (created), holding an exclusive ``flock`` on
+    the file that is at ``path``; ``wait=False``: ``BlockingIOError`` (with ``.fd``, still open,
+    to read the holder from) when another process holds it.
+
+    The holder deletes the file when it lets go (``_release``), so a process that opened the file
+    before that may lock a file that is no longer at ``path`` while a third process creates and
+    locks a new one: both would hold "the lock".  A lock counts only if the file locked is still
+    the one at ``path`` (same device and inode), else it is let go and taken again."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-            raise OutputError(
-                f"{out} is being written by another process (PID {holder}); wait for it to end "
-                "or choose another output"
-            ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError as exc:
+            exc.fd = fd
+            raise
+        except BaseException:
+            os.close(fd)
+            raise
+        try:
+            now = os.stat(path)
+        except FileNotFoundError:
+            now = None
+        held = os.fstat(fd)
+        if now is not None and (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino):
+            return fd
+        os.close(fd)  # its holder deleted it after this process opened it: lock the new one
+
+
+def _release(path: Path, fd: int) -> None:
+    """Delete the lock file while still holding it (no one else can hold the file at ``path``
+    now, so it is this process's), then let go: a process waiting on it finds it gone and takes
+    the lock on a new file (``_acquire``).  A killed process leaves its file; the next holder
+    deletes it."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
     finally:
         os.close(fd)  # releases the lock
 
 
 @contextmanager
-def file_lock(path: Path) -> Iterator[None]:
-    """Hold an exclusive ``flock`` on ``path`` (created) for a read-modify-write of a shared file,
-    e.g. a model's evaluations list that concurrent ``lhf evaluate`` runs append to; waits."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+def _lock(out: Path) -> Iterator[None]:
+    lock_path = out.parent / f".{out.name}.lock"
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd = _acquire(lock_path, wait=False)
+    except BlockingIOError as exc:
+        try:
+            holder = os.pread(exc.fd, 32, 0).decode(errors="replace").strip() or "?"
+        finally:
+            os.close(exc.fd)
+        raise OutputError(
+            f"{out} is being written by another process (PID {holder}); wait for it to end "
+            "or choose another output"
+        ) from None
+    except OSError as exc:
+        raise OutputError(
+            f"cannot write the output folder {out}: {exc.strerror} ({exc.filename})"
+        ) from None
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield
     finally:
-        os.close(fd)
+        _release(lock_path, fd)
+
+
+@contextmanager
+def file_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``path`` (created; deleted when let go) for a
+    read-modify-write of a shared file, e.g. a model's evaluations list that concurrent
+    ``lhf evaluate`` runs append to; waits."""
+    fd = _acquire(path, wait=True)
+    try:
+        yield
+    finally:
+        _release(path, fd)
 
 
 def _stale_replacements(out: Path) -> list[Path]:
@@ -483,6 +533,7 @@ def output_folder(
                     shutil.rmtree(real, ignore_errors=True)
                 else:
                     marker.unlink(missing_ok=True)
+                DISCARDED.append((kind, real, created))
             elif not was_empty:
                 _restore_marker(real, before)
             # else: a folder this run started empty holds part of an lhf artifact: its

@@ -35,6 +35,13 @@ def test_table(capsys):
     for env_id in list_env_ids():
         assert env_id in out
     assert "6233/328" in out and "13..20 (mean 16.54)" in out
+    # the validation column: min(test, train // 4) held-out train tasks, by hand
+    header, _, *lines = out.splitlines()
+    assert header.split()[:6] == ["id", "horizon", "tasks", "train/test", "validation", "state"]
+    rows = {line.split()[0]: line.split()[3:6] for line in lines}
+    assert rows["darkroom"] == ["73/8", "8", "of"]  # min(8, 73 // 4 = 18)
+    assert rows["dark-key-to-door"] == ["6233/328", "328", "of"]  # min(328, 1558)
+    assert rows["metaworld-reach"] == ["50/50", "12", "of"]  # min(50, 50 // 4 = 12)
 
 
 @pytest.mark.slow

@@ -34,7 +34,8 @@ def _bars() -> tuple[bool, bool, bool]:
 
 
 EVAL = {"env_id": "darkroom", "tasks": [0], "mean_return": 0.0, "first_return": 0.0,
-        "final_return": 0.0, "success_rate": None, "env_steps_per_s": 1.0}  # fmt: skip
+        "final_return": 0.0, "success_rate": None, "env_steps_per_s": 1.0,
+        "task_label": "unseen tasks"}  # fmt: skip
 PUSHED = {"kind": "dataset", "repo_type": "dataset", "commit": "0" * 40}
 VERIFIED = {"notes": [], "problems": [], "path": "p", "kind": "dataset"}
 

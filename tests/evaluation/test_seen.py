@@ -35,9 +35,26 @@ def test_seen_tasks_by_task_identity():
     assert seen_tasks(mw, _Config([10, 11], 0), [10, 50], split_seed=1) == []
     assert seen_tasks(dark, _Config(None, None), [5], split_seed=0) is None
     assert seen_label([], 8) == "unseen tasks"
+    assert seen_label([], 8, "test") == "unseen tasks"
+    assert seen_label([], 8, "validation") == "validation tasks"
+    assert seen_label([12], 8, "validation") == "seen tasks (1 of 8)"  # seen wins
     assert seen_label([62], 8) == "seen tasks (1 of 8)"
     assert seen_label([1, 2], 2) == "seen tasks"
     assert seen_label(None, 8).startswith("seen tasks")
+
+
+def test_curve_titles():
+    from lhf_hf.evaluation.evaluate import _curve_title
+
+    assert _curve_title("darkroom", 8, "test", "unseen tasks") == (
+        "darkroom: 8 test tasks, unseen tasks, in context"
+    )
+    assert _curve_title("darkroom", 8, "validation", "validation tasks") == (
+        "darkroom: 8 validation tasks, in context"
+    )
+    assert _curve_title("darkroom", 8, "test", "seen tasks (1 of 8)") == (
+        "darkroom: 8 test tasks, seen tasks (1 of 8), in context"
+    )
 
 
 def test_collect_defaults_to_the_train_split():
@@ -193,15 +210,30 @@ def test_a_damaged_evaluations_list_is_refused_before_the_rollouts(trained, tmp_
     assert any("evaluations.json" in p for p in CheckpointArtifact.verify(model))
 
 
-def test_validation_tasks_are_evaluated_by_name(trained, tmp_path):
-    """`--tasks validation`: split 0's held-out train tasks, none of which this model trained on;
-    `--tasks train` holds 3 and 40, which it did."""
-    res = evaluate(
-        EvalConfig(model=str(trained), out=str(tmp_path / "v"), episodes=1, tasks="validation"),
-        False,
-    )
+def test_validation_tasks_are_evaluated_by_name(trained, tmp_path, capsys):
+    """`--tasks validation`: split 0's held-out train tasks, none of which this model trained on,
+    labelled "validation tasks" (not the unseen test tasks results are reported on) in the
+    command's line, the results, the card and compare's row; `--tasks train` holds 3 and 40,
+    which it did."""
+    model = tmp_path / "m"
+    shutil.copytree(trained, model)
+    out = tmp_path / "v"
+    argv = ["evaluate", "--model", str(model), "--out", str(out), "--episodes", "1"]
+    assert main([*argv, "--tasks", "validation", "--no-progress"]) == 0
+    assert capsys.readouterr().out.startswith("darkroom, validation tasks (8 tasks, 1 episode): ")
+    res = json.loads((out / "eval_results.json").read_text())
     assert sorted(res["tasks"]) == [12, 17, 27, 36, 45, 61, 64, 68]
-    assert res["task_label"] == "unseen tasks" and res["seen_tasks"] == []
+    assert res["task_label"] == "validation tasks" and res["seen_tasks"] == []
+    card = (model / "README.md").read_text()
+    # (the model's card also lists the evaluations earlier tests made of it)
+    rows = [line for line in card.splitlines() if line.startswith("| darkroom | 8 validation |")]
+    assert len(rows) == 1 and rows[0].startswith(
+        "| darkroom | 8 validation | validation tasks | 0 |"
+    )
+    assert "validation-split-0-seen" not in card and "config: validation-split-0\n" in card
+    from lhf_hf.evaluation.compare import backbone_of
+
+    assert backbone_of(res) == "AD"  # not seen
     with pytest.raises(SeenTasksError, match=r"\(3, 40\).*Evaluate on --tasks validation"):
         evaluate(EvalConfig(model=str(trained), out=str(tmp_path / "t"), episodes=1,
                             tasks="train"), False)  # fmt: skip

@@ -1,4 +1,6 @@
-"""The rollout's numpy token embedder equals the model's own embedders (``modeling_icrl.py``)."""
+"""The rollout's numpy token embedder: its feature vectors by hand (the layout of
+``ICRLConfig.transition_layout``, as in ``tests/modeling/test_token_layout.py``), and its tokens equal
+to the model's own embedders (``modeling_icrl.py``)."""
 
 from __future__ import annotations
 
@@ -64,6 +66,33 @@ def test_step_tokens_equal_the_model_embedders(case):
         torch.testing.assert_close(got, want, atol=1e-6, rtol=1e-6)
     want = model.embed_query_actions(t(p_state), t(p_action))
     torch.testing.assert_close(tokens.query(p_state, p_action), want, atol=1e-6, rtol=1e-6)
+
+
+def test_step_features_by_hand():
+    """Darkroom, one-hot per coordinate: the step (2, 7) --action 3, reward 1, done--> then state
+    (8, 0), and the first token of a stream (nothing before it)."""
+    model = ICRLModel(icrl_config("tiny", objective="dicp", **CASES["grid"])).eval()
+    tokens = StepTokens(model)
+    states = np.array([[8.0, 0.0]], np.float32)
+    want = np.zeros((1, 44), np.float32)
+    want[0, [2, 9 + 7]] = 1  # prev_state (2, 7): row one-hot, then column one-hot
+    want[0, 18 + 3] = 1  # prev_action 3
+    want[0, [23, 24, 25]] = 1.0  # prev_reward, prev_done, has_prev
+    want[0, [26 + 8, 26 + 9 + 0]] = 1  # state (8, 0)
+    prev = (np.array([[2.0, 7.0]]), np.array([3]), np.array([1.0]), np.array([True]))
+    np.testing.assert_array_equal(tokens.transition_features(states, prev), want)
+    first = np.zeros((1, 44), np.float32)
+    first[0, [26 + 8, 26 + 9]] = 1
+    np.testing.assert_array_equal(tokens.transition_features(states, None), first)
+    query = np.zeros((1, 23), np.float32)
+    query[0, [8, 9 + 0, 18 + 2]] = 1  # state (8, 0), action 2
+    np.testing.assert_array_equal(tokens.query_features(states, np.array([2])), query)
+
+    cont = dict(state_dim=2, state_bins=0, action_dim=2, discrete_actions=False)
+    tokens = StepTokens(ICRLModel(icrl_config("tiny", objective="ad", **cont)).eval())
+    prev = (np.array([[2.0, 3.0]]), np.array([[0.25, -0.75]]), np.array([-0.5]), np.array([False]))
+    got = tokens.transition_features(np.array([[0.5, -1.5]], np.float32), prev)
+    assert got.tolist() == [[2.0, 3.0, 0.25, -0.75, -0.5, 0.0, 1.0, 0.5, -1.5]]
 
 
 def test_query_tokens_need_a_dicp_model():

@@ -229,6 +229,41 @@ def test_existing_output_needs_resume_or_overwrite(small_darkroom, tmp_path):
     assert (tmp_path / "m" / "model.safetensors").exists()
 
 
+def test_an_interrupt_before_the_first_checkpoint_leaves_nothing_to_resume(
+    small_darkroom, tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C before the first save: the folder the run created held only its in-progress
+    marker, so it is removed, and the message says so and to run the command again (a --resume
+    would have nothing to continue, and says that too)."""
+    from lhf_hf.training.trainer import WindowTrainer
+    from lhf_hf.utils import outputs
+
+    def pressed(self, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    # this command's, not those of the fixtures' commands in this process
+    monkeypatch.setattr(outputs, "COMPLETED", [])
+    monkeypatch.setattr(outputs, "DISCARDED", [])
+    monkeypatch.setattr(WindowTrainer, "train", pressed)
+    out = tmp_path / "m"
+    args = ["train", "--dataset", str(small_darkroom.root), "--objective", "ad", "--preset",
+            "tiny", "--max-steps", "4", "--batch-size", "4", "--out", str(out)]  # fmt: skip
+    capsys.readouterr()
+    assert main(args) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"lhf train: interrupted (before the model held anything to resume: {out.resolve()} is "
+        "removed; run the command again)"
+    )
+    assert not out.exists() and not list(tmp_path.glob(".*"))
+    monkeypatch.setattr(outputs, "DISCARDED", [])
+    assert main([*args, "--resume"]) == 1
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"lhf train: error: --resume: no complete checkpoint-* folder in {out} to resume from: "
+        "train without --resume"
+    )
+    assert not out.exists()
+
+
 def test_resume_continues_identically(small_darkroom, learned_darkroom, tmp_path, capsys):
     cfg = dict(
         dataset=str(small_darkroom.root),

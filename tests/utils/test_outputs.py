@@ -114,10 +114,15 @@ def test_lock_files_are_not_content(tmp_path):
     m = tmp_path / "m"
     with pytest.raises(ValueError):
         with output_folder(m / "eval", "evaluation"):
+            assert sorted(p.name for p in m.iterdir()) == [".eval.lock", "eval"]
             raise ValueError("bad model")
-    assert [p.name for p in m.iterdir()] == [".eval.lock"]
+    assert list(m.iterdir()) == []  # the lock file goes with the writer, also after an error
+    (m / ".eval.lock").write_text("12345\n")  # as a killed writer leaves it
     with output_folder(m, "model"):  # m holds only a lock file: empty
         pass
+    with output_folder(m / "eval", "evaluation"):  # a killed writer's lock file is taken over
+        pass
+    assert not list(m.glob(".*.lock"))
 
 
 def test_a_failed_overwrite_puts_the_old_artifact_back(tmp_path):
@@ -288,8 +293,10 @@ def test_a_second_writer_is_refused_naming_the_holder(tmp_path):
                 pass
     finally:
         holder.communicate("\n", timeout=60)
+    assert not (tmp_path / ".busy.lock").exists()  # the holder deleted its lock file
     with output_folder(out, "model", overwrite=True):  # free again once the holder is done
         pass
+    assert _files(tmp_path) == ["busy"]
 
 
 def test_killed_overwrite_keeps_the_old_artifact_beside(tmp_path):
