@@ -57,13 +57,14 @@ class Published:
         return f"{OWNER}/{self.name}"
 
 
-#: One per env and collection protocol the shipped specs collect at the cpu preset.  Meta-World's
-#: (metaworld-ml1's Reach-Wall PPO, metaworld-sac's Reach and Push) join as their SB3 collections
-#: are kept: about an hour each on 2 shared cores.
+#: One per env and collection protocol the shipped specs collect at the cpu preset.  metaworld-sac's
+#: (SAC on Reach and Push) join as their SB3 collections are kept: about an hour each on 2 shared
+#: cores.
 PUBLISHED = (
     Published("darkroom-paper", "darkroom-main", "darkroom"),
     Published("darkroom-noisy", "darkroom-noisy", "darkroom"),
     Published("darkroom-independent", "darkroom-main-independent", "darkroom"),
+    Published("metaworld-reach-wall-ppo", "metaworld-ml1", "metaworld-reach-wall"),
 )
 
 
