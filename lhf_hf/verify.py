@@ -87,7 +87,8 @@ def _snapshot(spec: str) -> Path:
         try:
             return resolve(spec, repo_type, "artifact")
         except HubError as exc:
-            if "not loaded" in str(exc):  # found, but not what was pushed: that is the answer
+            # found, but not what was pushed, or without that revision: that is the answer
+            if "not loaded" in str(exc) or ": revision '" in str(exc):
                 raise
             errors.append(str(exc))
     raise HubError(f"{spec}: not readable as a dataset repo nor as a model repo; {errors[-1]}")

@@ -28,7 +28,7 @@ from lhf_hf.filtering.counts import selection_counts
 from lhf_hf.histories import load_histories
 from lhf_hf.modeling import MODEL_CODE_FILES, ICRLConfig, ICRLModel, save_model_code
 from lhf_hf.modeling.loading import check_weights
-from lhf_hf.utils.hub import public_contents
+from lhf_hf.utils.hub import HubError, endpoint, error_text, public_contents, require_token
 from lhf_hf.utils.io import (
     give_umask_mode,
     read_json,
@@ -272,6 +272,14 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
         if not cfg.training_args:
             raise
         raise refused(cfg, "Trainer", exc) from None
+    except Exception as exc:  # noqa: BLE001 (the Hub's HTTP and connection errors, whatever class)
+        # Trainer creates the --push-to-hub repo in its __init__: a refusal there is one line
+        if not cfg.push_to_hub or not _from_the_hub(exc):
+            raise
+        raise HubError(
+            f"--push-to-hub {cfg.push_to_hub}: the repo could not be created on {endpoint()} "
+            f"(nothing was trained): {error_text(exc)}"
+        ) from None
     provenance = {
         "train": cfg.to_dict(),
         "dataset": {
@@ -297,6 +305,14 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     }
     trainer.lhf_identity = train_identity(cfg, config, provenance)
     return trainer, provenance
+
+
+def _from_the_hub(exc: BaseException) -> bool:
+    """An error of the Hub client or its HTTP stack (the repo creation Trainer runs)."""
+    return any(
+        c.__module__.split(".")[0] in ("huggingface_hub", "httpx", "httpcore", "requests")
+        for c in type(exc).__mro__
+    )
 
 
 def train_identity(cfg: TrainConfig, config: ICRLConfig, provenance: dict) -> dict:
@@ -407,6 +423,8 @@ def train(cfg: TrainConfig, model_config: ICRLConfig | None = None, progress: bo
     """Train, then write the final model, ``train_config.json``, the loss log and plot and the card.
     ``progress``: Trainer's progress bar."""
     cfg = resolve(cfg)  # a reporter not installed, a bad Trainer argument: said before anything
+    if cfg.push_to_hub:
+        require_token()  # the real Hub without a token: refused before any request, as `lhf push`
     out = Path(cfg.out)
     existed = out.is_dir() and any(out.iterdir())  # before the claim creates it
     with ExitStack() as claim:

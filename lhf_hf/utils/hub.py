@@ -165,7 +165,7 @@ def _refs(repo_id: str, repo_type: str) -> list[str] | None:
     return [r.name for r in (*refs.branches, *refs.tags)]
 
 
-def _error_text(exc: BaseException) -> str:
+def error_text(exc: BaseException) -> str:
     """An exception and its cause in one text, the cause only where it adds words (the Hub's
     HTTP errors repeat their cause's message, a failed connection its socket error)."""
     text = str(exc).strip()
@@ -320,7 +320,8 @@ def check_snapshot(path: Path, ref: HubRef) -> None:
         )
 
 
-def _require_token(token: str | None) -> None:
+def require_token(token: str | None = None) -> None:
+    """Refuse, before any request, a push to the real Hub without a token."""
     if (
         token is None
         and get_token() is None
@@ -358,7 +359,7 @@ def push_folder(
     ``{repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises ``HubError`` on
     any failure (a success is only reported once the commit and the tag exist).
     """
-    _require_token(token)
+    require_token(token)
     branch = revision or "main"
     added = {f: b for f, b in (added or {}).items() if f != C.CARD_PATH}
     files = sorted(set(upload_files(path)) | set(added))
@@ -393,7 +394,7 @@ def push_folder(
         )
     except Exception as exc:  # noqa: BLE001 (httpx's ConnectError etc.: every failure is one line)
         # Before the commit call returns, the repo is unchanged: the Hub applies a commit whole.
-        cause = _error_text(exc)
+        cause = error_text(exc)
         raise HubError(
             f"push of {path} to {repo_type} repo {repo_id} on {endpoint()} failed at '{step}' "
             f"(nothing was committed): {cause}"

@@ -397,6 +397,18 @@ def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
         hub_client(None, CLI, "push", ds, "--repo-id", "lhf-test/real", token=None),
         "needs a write token",
     )
+    # `lhf train --push-to-hub` the same: before any request, and the server's refusal in one line
+    train = ["train", "--dataset", ds, "--objective", "ad", "--preset", "tiny", "--max-steps", "2",
+             "--batch-size", "4", "--out", "run-no-token"]  # fmt: skip
+    err = _fails(hub_client(None, CLI, *train, "--push-to-hub", "lhf-test/real", token=None),
+                 "needs a write token")  # fmt: skip
+    assert "Traceback" not in err and not (tmp_path / "run-no-token").exists()
+    err = _fails(
+        hub_client(fake_hub.endpoint, CLI, *train, "--push-to-hub", "lhf-test/t", token=None),
+        "--push-to-hub lhf-test/t: the repo could not be created",
+        "Invalid credentials",
+    )
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     # A commit the server rejects: an error, and the repo keeps its previous state (no tag).
     fake_hub.fail_commits = 1
     _fails(hub_client(fake_hub.endpoint, PUSH, ds, "lhf-test/rejected"), "nothing was committed")
@@ -432,6 +444,12 @@ def test_load_errors(fake_hub, olah, hub_client):
     # olah answers a missing revision as a missing repo: the repo is asked for again, and named
     _fails(
         hub_client(olah, CLI, "filter", "lhf-test/plain-csv@no-such-rev", "--out", "s"),
+        "revision 'no-such-rev' does not exist (it has main)",
+    )
+    # verify tries a dataset repo, then a model repo: a dataset repo without the revision is
+    # the answer, not "no model repo"
+    _fails(
+        hub_client(olah, CLI, "verify", "lhf-test/plain-csv@no-such-rev"),
         "revision 'no-such-rev' does not exist (it has main)",
     )
 
