@@ -17,6 +17,7 @@ import json
 import types
 import typing
 from functools import cache
+from pathlib import Path
 from typing import Any, Literal
 
 import torch
@@ -98,7 +99,7 @@ def resolve(cfg: TrainConfig) -> TrainConfig:
 def training_arguments(cfg: TrainConfig, world: int, progress: bool) -> TrainingArguments:
     """The Trainer's arguments: lhf's own, then ``cfg.training_args`` (already ``resolve``d)."""
     own = dict(
-        output_dir=cfg.out,
+        output_dir=str(Path(cfg.out).resolve()),  # recorded: absolute (a push hides it)
         max_steps=cfg.max_steps,
         per_device_train_batch_size=cfg.batch_size // world,
         learning_rate=cfg.lr,

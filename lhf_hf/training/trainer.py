@@ -281,7 +281,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
             f"(nothing was trained): {error_text(exc)}"
         ) from None
     provenance = {
-        "train": cfg.to_dict(),
+        "train": _recorded_paths(cfg.to_dict()),
         "dataset": {
             "path": ds.source,
             "env_id": ds.env_id,
@@ -305,6 +305,17 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
     }
     trainer.lhf_identity = train_identity(cfg, config, provenance)
     return trainer, provenance
+
+
+def _recorded_paths(train: dict) -> dict:
+    """The train config as recorded: its local folders absolute (a relative path means nothing
+    away from where the command ran, and a push reduces an absolute one to ``local:NAME``); a Hub
+    repo id stays as given."""
+    out = dict(train)
+    for key in ("dataset", "selection", "out"):
+        if out.get(key) and Path(out[key]).exists():
+            out[key] = str(Path(out[key]).resolve())
+    return out
 
 
 def _from_the_hub(exc: BaseException) -> bool:

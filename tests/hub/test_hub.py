@@ -277,6 +277,9 @@ def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_pat
         tree = _git(git_repo, "ls-tree", "--name-only", rev).splitlines()
         assert set(MODEL_CODE_FILES) <= set(tree), rev
     assert _grep_history(git_repo, str(tmp_path)) == []
+    # `--out run` (relative, meaningless elsewhere) recorded absolute, so the push names it local
+    assert json.loads((git_repo / "train_config.json").read_text())["train"]["out"] == "local:run"
+    assert json.loads((git_repo / "training_args.json").read_text())["output_dir"] == "local:run"
     pushed = (git_repo / "model.safetensors").read_bytes()
     assert pushed == (tmp_path / "run" / "model.safetensors").read_bytes()
 
