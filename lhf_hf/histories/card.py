@@ -169,6 +169,7 @@ def render_card_of(
         )
     versions = ", ".join(f"{k} {v}" for k, v in lhf.get("versions", {}).items())
     n_train = int((tasks[C.SPLIT] != "test").sum())  # validation tasks are train tasks
+    n_validation = int((tasks[C.SPLIT] == "validation").sum())
     card = DatasetCard.from_template(
         card_data,
         template_path=str(template_path("histories_card.md")),
@@ -179,6 +180,10 @@ def render_card_of(
         derived_note=derived_note,
         total_tasks=n_tasks,
         n_train=n_train,
+        n_validation=n_validation,
+        # a Hub repo at the tag LeRobot readers use (a branch name makes datasets ask the Hub's
+        # dataset viewer first, docs/hub.md); a local folder has no revision
+        revision_arg=f', revision="{C.CODEBASE_VERSION}"' if load_path else "",
         n_test=n_tasks - n_train,
         split_seed=lhf["split_seed"],
         histories=lhf["histories_per_task"],
@@ -241,8 +246,8 @@ def _how_collected(collect: dict, lhf: dict) -> str:
     }.get(protocol, str(protocol))
     return (
         f"Protocol `{protocol}`: {desc} Collector: `{collect.get('collector')}`. Task t's learners are "
-        f"seeded from `SeedSequence([{collect.get('seed')}, t])`. Episodes end only at the horizon "
-        f"(gymnasium `truncated`), and `{lhf.get('terminal_convention', 'truncation')}` is what the learner saw."
+        f"seeded from `SeedSequence([{collect.get('seed')}, t])`. Terminal convention: "
+        f"{lhf.get('terminal_convention', 'truncation')}."
     )
 
 

@@ -131,8 +131,8 @@ def render_model_card(
     """The card's text; ``load_path``: what its snippets load (the folder, or the repo id);
     ``public``: for a push (the dataset and selection by name, never a path of this machine)."""
 
-    def source(path: str) -> str:
-        return public_source(path) if public else f"`{path}`"
+    def source(path: str, what: str = "dataset") -> str:
+        return public_source(path, what) if public else f"`{path}`"
 
     train = provenance["train"]
     ds = provenance["dataset"]
@@ -159,8 +159,8 @@ def render_model_card(
         objective=config.objective,
         env_id=ds["env_id"],
         selection_phrase=" resampled by an LHF selection" if sel else "",
-        layers=config.num_hidden_layers,
-        heads=config.num_attention_heads,
+        layers=_count(config.num_hidden_layers, "layer"),
+        heads=_count(config.num_attention_heads, "head"),
         hidden=config.hidden_size,
         intermediate=config.intermediate_size,
         params=f"{params:,}" if params else "?",
@@ -183,7 +183,8 @@ def render_model_card(
         dataset_source=source(ds["path"]),
         dataset_fingerprint=ds["fingerprint"][:16],
         selection_text=(
-            f"{source(sel['path'])} ({sel['filter']['strategy']}, lambda {sel['filter']['lam']}; "
+            f"{source(sel['path'], 'selection')} ({sel['filter']['strategy']}, lambda "
+            f"{sel['filter']['lam']}; "
             f"{sel['selected_unique']} histories kept)"
             if sel
             else "none (every history once)"
@@ -196,7 +197,7 @@ def render_model_card(
             if provenance.get("sequence_length")
             else "windows"
         ),
-        world_size=provenance.get("world_size", 1),
+        processes=_count(provenance.get("world_size", 1), "process", "processes"),
         beta1=train["beta1"],
         beta2=train["beta2"],
         lr=train["lr"],
@@ -209,6 +210,10 @@ def render_model_card(
         versions=", ".join(f"{k} {v}" for k, v in provenance.get("versions", {}).items()),
         eval_section=eval_section(evaluations or []),
     ).content
+
+
+def _count(n: int, one: str, many: str | None = None) -> str:
+    return f"{n} {one if n == 1 else many or one + 's'}"
 
 
 def _final_loss(provenance: dict) -> str:

@@ -192,12 +192,12 @@ def source_of(spec: str | Path, path: Path) -> str:
     return str(path.resolve())
 
 
-def public_source(source: str) -> str:
+def public_source(source: str, what: str = "dataset") -> str:
     """A recorded source as a card may show it: a Hub snapshot (``org/name@commit``) as it is, a
     local folder (recorded absolute by ``source_of``) by its name only: a card is pushed, and the
     machine's paths are not the reader's."""
     if str(source).startswith("/"):
-        return f"a local dataset `{Path(source).name}`"
+        return f"a local {what} `{Path(source).name}`"
     return f"`{source}`"
 
 

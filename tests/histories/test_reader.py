@@ -163,7 +163,8 @@ def test_card_from_its_metadata_alone(learned_darkroom, tmp_path):
         sh.copy(learned_darkroom.root / rel, tmp_path / rel)
     alone = render_card_of(CardInputs.read(tmp_path), "org/name")
     assert alone == render_card(learned_darkroom, "org/name")
-    assert 'load_dataset("org/name", split="train")' in alone and str(tmp_path) not in alone
+    assert 'load_dataset("org/name", split="train", revision="v3.0")' in alone
+    assert str(tmp_path) not in alone
     settings = alone.split("| setting | value |")[1].split("Library versions")[0]
     assert "| ppo_backend |" in settings and "noisy_fraction" not in settings
     with pytest.raises(ValueError, match="needs a load_path"):

@@ -105,7 +105,7 @@ def test_history_dataset_round_trip(small_darkroom_batched, fake_hub, olah, hub_
     meta = _card_meta(card)
     assert {"LeRobot", "lhf", "in-context-rl"} <= set(meta["tags"])
     assert [c["config_name"] for c in meta["configs"]] == ["default", "episodes", "histories"]
-    assert f'load_dataset("{repo}", split="train")' in card  # snippets name the repo, not a path
+    assert f'load_dataset("{repo}", split="train", revision="v3.0")' in card  # the repo, not a path
     assert str(ds.root) not in card
 
     # Read back through olah with datasets, and with load_histories.
