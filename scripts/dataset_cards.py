@@ -58,13 +58,13 @@ class Published:
 
 
 #: One per env and collection protocol the shipped specs collect at the cpu preset.  metaworld-sac's
-#: (SAC on Reach and Push) join as their SB3 collections are kept: about an hour each on 2 shared
-#: cores.
+#: Push (SB3 SAC) joins when its collection is kept: about an hour on 2 shared cores.
 PUBLISHED = (
     Published("darkroom-paper", "darkroom-main", "darkroom"),
     Published("darkroom-noisy", "darkroom-noisy", "darkroom"),
     Published("darkroom-independent", "darkroom-main-independent", "darkroom"),
     Published("metaworld-reach-wall-ppo", "metaworld-ml1", "metaworld-reach-wall"),
+    Published("metaworld-reach-sac", "metaworld-sac", "metaworld-reach"),
 )
 
 
