@@ -49,13 +49,17 @@ def run(args: argparse.Namespace) -> int:
     # the cyclic GC need not rescan them on every full collection (~0.7 s per Key-to-Door chunk of
     # the batched collector's per-step allocations).
     gc.freeze()
-    ds = collect(
-        config,
-        output.out,
-        resume=output.resume,
-        overwrite=output.overwrite,
-        progress=output.progress,
-    )
+    try:
+        ds = collect(
+            config,
+            output.out,
+            resume=output.resume,
+            overwrite=output.overwrite,
+            progress=output.progress,
+        )
+    except KeyboardInterrupt:
+        print(f"lhf collect: {kept_tasks(config, output.out)}", file=sys.stderr)
+        raise
     if ds is not None:
         print(f"wrote {ds}\ncard: {ds.root / 'README.md'}")
     else:  # a non-zero rank under accelerate launch: rank 0 assembles the dataset
@@ -63,3 +67,19 @@ def run(args: argparse.Namespace) -> int:
             f"[rank {os.environ.get('RANK', '?')}] committed this rank's tasks; rank 0 wrote the dataset"
         )
     return 0
+
+
+def kept_tasks(config: CollectConfig, out) -> str:
+    """What an interrupted collection keeps for ``--resume``: its finished tasks (tasks are written
+    a chunk at a time, so an interrupt inside the first chunk keeps none)."""
+    from lhf_hf.histories.writer import task_done  # deferred: heavy (pyarrow)
+
+    rows = config.histories * config.steps
+    done = sum(task_done(out, p, rows) for p in range(len(config.tasks)))
+    if done:
+        return f"{done} of {len(config.tasks)} tasks are kept: --resume continues from them"
+    per_chunk = min(config.tasks_per_chunk or len(config.tasks), len(config.tasks))
+    chunk = "" if config.collector == "sb3" else (
+        f" (the batched collector writes {per_chunk} tasks at a time: --tasks-per-chunk sets how many)"
+    )  # fmt: skip
+    return f"no task had finished, so --resume starts over{chunk}"

@@ -149,3 +149,23 @@ def test_a_resume_goes_on_with_the_collector_the_folder_was_started_with(
     assert main([*argv, "--resume", "--collector", "batched"]) == 0  # as asked: refused later
     assert ran.pop().collector == "batched"
     assert main([*argv, "--overwrite"]) == 0 and ran.pop().collector == "batched"
+
+
+def test_an_interrupted_collection_says_what_resume_keeps(tmp_path):
+    """Tasks are written a chunk at a time: an interrupt says how many finished tasks --resume
+    keeps, or that none had finished and why."""
+    from lhf_hf.cli.collect import kept_tasks
+    from lhf_hf.configs import CollectConfig
+    from lhf_hf.histories.writer import write_task
+    from tests.histories.test_writer import fake_task
+
+    # 3 tasks of 3 histories x 40 transitions (fake_task's shape), Darkroom's horizon 20
+    sb3 = CollectConfig("darkroom", tasks="0,1,2", histories=3, steps=40, collector="sb3")
+    batched = CollectConfig("darkroom", tasks="0,1,2", histories=3, steps=40, collector="batched")
+    assert kept_tasks(sb3, tmp_path) == "no task had finished, so --resume starts over"
+    assert kept_tasks(batched, tmp_path) == (
+        "no task had finished, so --resume starts over (the batched collector writes 3 tasks at a "
+        "time: --tasks-per-chunk sets how many)"
+    )
+    write_task(tmp_path, 0, fake_task(task=0), horizon=20)
+    assert kept_tasks(sb3, tmp_path) == "1 of 3 tasks are kept: --resume continues from them"
