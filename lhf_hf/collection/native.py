@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import torch
@@ -30,7 +29,7 @@ from lhf_hf.utils.native_build import (  # noqa: F401 (this module's API before 
     target_march,
 )
 from lhf_hf.utils.native_build import verified as _verified
-from lhf_hf.utils.signals import interrupts_ignored
+from lhf_hf.utils.native_run import run_pieces
 
 SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
 ABI_VERSION = 1
@@ -99,45 +98,9 @@ def load(hidden: int = 64) -> ctypes.CDLL:
     return lib
 
 
-@functools.cache
-def _pool(threads: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(threads, thread_name_prefix="lhf-ppo")
-
-
-def _run(fn, ref, L: int, threads: int | None, pieces_per_thread: int = 8) -> None:
-    """fn(ref, l0, l1) over [0, L) in contiguous pieces pulled by ``threads`` threads; raise on a failure.
-
-    Why pieces, not one range per thread: a thread that loses its core for a while (the collector
-    writes the previous chunk in the background, other processes run) would leave the others
-    waiting at the end of a static split; with ~8 pieces per thread the idle ones take its share.
-    """
-    threads = max(1, min(threads or torch.get_num_threads(), L))
-    if threads == 1:
-        codes = [fn(ref, 0, L)]
-    else:
-        n = min(L, threads * pieces_per_thread)
-        bounds = [L * i // n for i in range(n + 1)]
-        pieces = [_pool(threads).submit(fn, ref, bounds[i], bounds[i + 1]) for i in range(n)]
-        try:
-            codes = [piece.result() for piece in pieces]
-        except BaseException:
-            _settle(pieces)
-            raise
-    for code in codes:
-        if code != 0:
-            raise RuntimeError(f"the PPO kernel failed: {ERRORS.get(code, code)}")
-
-
-def _settle(pieces: list) -> None:
-    """Interrupted (Ctrl-C) while the pieces run: drop the queued ones and wait for the running
-    ones before the caller unwinds.  A running piece reads and writes, through raw pointers, the
-    tensors the unwinding frees (and the interpreter's exit tears down): an interrupted batched
-    collection crashed with a segfault in the kernel after printing "interrupted".  A piece takes
-    milliseconds; a further interrupt meanwhile is ignored."""
-    with interrupts_ignored():
-        for piece in pieces:
-            piece.cancel()
-        wait(pieces)
+def _run(fn, ref, L: int, threads: int | None) -> None:
+    """fn(ref, l0, l1) over the L learners, 8 pieces per thread (``utils.native_run``)."""
+    run_pieces(fn, ref, L, threads or torch.get_num_threads(), 8, "PPO kernel", ERRORS)
 
 
 def ppo_act(

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import torch
@@ -43,7 +42,7 @@ from transformers.masking_utils import ALL_MASK_ATTENTION_FUNCTIONS, sdpa_mask
 
 from lhf_hf.utils import native_build
 from lhf_hf.utils.native_build import KernelUnavailable
-from lhf_hf.utils.signals import interrupts_ignored
+from lhf_hf.utils.native_run import run_pieces
 
 from . import train_attention
 
@@ -109,34 +108,10 @@ def available() -> str | None:
     return None
 
 
-@functools.cache
-def _pool(threads: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(threads, thread_name_prefix="lhf-attn")
-
-
 def _run(fn, args: AttnArgs, n: int) -> None:
-    """fn(args, h0, h1) over heads [0, n) in contiguous pieces pulled by torch's thread count."""
-    ref = ctypes.byref(args)
-    threads = max(1, min(torch.get_num_threads(), n))
-    if threads == 1:
-        codes = [fn(ref, 0, n)]
-    else:
-        pieces = min(n, threads * _PIECES_PER_THREAD)
-        bounds = [n * i // pieces for i in range(pieces + 1)]
-        futures = [_pool(threads).submit(fn, ref, bounds[i], bounds[i + 1]) for i in range(pieces)]
-        try:
-            codes = [f.result() for f in futures]
-        except BaseException:
-            # a running piece writes, through raw pointers, tensors the unwinding frees: wait for
-            # it (lhf_hf.collection.native._settle says why)
-            with interrupts_ignored():
-                for f in futures:
-                    f.cancel()
-                wait(futures)
-            raise
-    for code in codes:
-        if code != 0:
-            raise RuntimeError(f"the attention kernel failed: {ERRORS.get(code, code)}")
+    """fn(args, h0, h1) over heads [0, n), in pieces pulled by torch's thread count."""
+    run_pieces(fn, ctypes.byref(args), n, torch.get_num_threads(), _PIECES_PER_THREAD,
+               "attention kernel", ERRORS)  # fmt: skip
 
 
 def _threshold(p: float) -> int:
@@ -244,14 +219,10 @@ def key_ranges(
 def _torch_path_does_it(query, key, attention_mask, kwargs) -> bool:
     """The cases this module leaves to the torch path (module docstring)."""
     return (
-        query.device.type != "cpu"
+        train_attention.outside_cpu_paths(query, attention_mask, kwargs)
         or query.dtype != torch.float32
-        or torch.is_autocast_enabled("cpu")
         or query.shape[-1] not in HEAD_DIMS
         or key.shape[2] != query.shape[2]
-        or (attention_mask is not None and attention_mask.requires_grad)
-        or kwargs.get("position_bias") is not None
-        or kwargs.get("softcap") is not None
     )
 
 

@@ -92,15 +92,23 @@ class DropoutAttention(torch.autograd.Function):
         return grad_q, grad_k, grad_v, None, None, None
 
 
-def _sdpa_does_it(query, attention_mask, dropout: float, kwargs) -> bool:
-    """The cases this module leaves to ``sdpa_attention_forward`` (module docstring)."""
+def outside_cpu_paths(query, attention_mask, kwargs) -> bool:
+    """The cases no CPU training path here takes (this module's and the C++ kernel's): another
+    device, autocast, a mask that takes gradients, ``position_bias`` or ``softcap``."""
     return (
-        not 1 <= round(dropout * _LEVELS) < _LEVELS  # p < 2^-17 rounds to 0; p near 1
-        or query.device.type != "cpu"
+        query.device.type != "cpu"
         or torch.is_autocast_enabled("cpu")
         or (attention_mask is not None and attention_mask.requires_grad)
         or kwargs.get("position_bias") is not None
         or kwargs.get("softcap") is not None
+    )
+
+
+def _sdpa_does_it(query, attention_mask, dropout: float, kwargs) -> bool:
+    """The cases this module leaves to ``sdpa_attention_forward`` (module docstring)."""
+    return (
+        not 1 <= round(dropout * _LEVELS) < _LEVELS  # p < 2^-17 rounds to 0; p near 1
+        or outside_cpu_paths(query, attention_mask, kwargs)
     )
 
 

@@ -32,6 +32,12 @@ def kernel_unsupported(config: ICRLConfig, device: torch.device) -> str | None:
     return attention_kernel.available()
 
 
+def _autocast(training_args: dict) -> str | None:
+    """The mixed-precision Trainer argument set (``bf16``, ``fp16``), if any: the kernel leaves
+    autocast to the torch path."""
+    return next((k for k in ("bf16", "fp16") if training_args.get(k)), None)
+
+
 def resolve_attention_kernel(cfg: TrainConfig, config: ICRLConfig, device: torch.device) -> str:
     """``kernel`` or ``torch``: ``cfg.attention_kernel`` with ``auto`` decided (a UserError when
     ``kernel`` is asked for and cannot run)."""
@@ -47,9 +53,9 @@ def resolve_attention_kernel(cfg: TrainConfig, config: ICRLConfig, device: torch
                 f"attn_implementation={chosen!r}"
             )
         return "torch"
-    mixed = [k for k in ("bf16", "fp16") if cfg.training_args.get(k)]
+    mixed = _autocast(cfg.training_args)
     why = (
-        f"training_args {mixed[0]}=True computes attention in autocast, which the kernel leaves to torch"
+        f"training_args {mixed}=True computes attention in autocast, which the kernel leaves to torch"
         if mixed
         else kernel_unsupported(config, device)
     )
@@ -82,7 +88,7 @@ def planned_attention_kernel(cfg: TrainConfig) -> str:
     size = PRESETS[cfg.preset]
     head_dim = size["hidden_size"] // size["num_attention_heads"]
     if (
-        any(args.get(k) for k in ("bf16", "fp16"))
+        _autocast(args)
         or torch.cuda.is_available()  # training runs on the GPU: the torch path
         or head_dim not in attention_kernel.HEAD_DIMS
     ):
