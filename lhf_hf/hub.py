@@ -83,8 +83,11 @@ def push(
     revision: str | None = None,
     token: str | None = None,
     commit_message: str | None = None,
+    source_repo: str | None = None,
 ) -> dict:
     """Push the artifact folder ``path`` to ``repo_id`` (created if absent) as one commit.
+    ``source_repo``: for a selection, the Hub repo its local source dataset was pushed to
+    (checked, then named in the card and the pushed record).
 
     Returns ``{kind, repo_id, repo_type, revision, commit, url, uploaded, deleted, tag}``; raises
     ``HubError`` on any failure (a success is only reported once the commit and, for datasets, the
@@ -100,4 +103,5 @@ def push(
         revision=revision,
         token=token,
         commit_message=commit_message,
+        source_repo=source_repo,
     )

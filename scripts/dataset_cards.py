@@ -57,14 +57,14 @@ class Published:
         return f"{OWNER}/{self.name}"
 
 
-#: One per env and collection protocol the shipped specs collect at the cpu preset.  metaworld-sac's
-#: Push (SB3 SAC) joins when its collection is kept: about an hour on 2 shared cores.
+#: One per env and collection protocol the shipped specs collect at the cpu preset.
 PUBLISHED = (
     Published("darkroom-paper", "darkroom-main", "darkroom"),
     Published("darkroom-noisy", "darkroom-noisy", "darkroom"),
     Published("darkroom-independent", "darkroom-main-independent", "darkroom"),
     Published("metaworld-reach-wall-ppo", "metaworld-ml1", "metaworld-reach-wall"),
     Published("metaworld-reach-sac", "metaworld-sac", "metaworld-reach"),
+    Published("metaworld-push-sac", "metaworld-sac", "metaworld-push"),
 )
 
 

@@ -149,9 +149,13 @@ def _run(args: argparse.Namespace, program: bool) -> int:
 def _completed() -> str:
     """What an interrupted command had already finished (complete, kept), and what it had not
     written anything into yet (nothing to resume): said, not guessed."""
-    from lhf_hf.utils.outputs import COMPLETED, DISCARDED  # deferred: heavy (pyarrow, via utils.io)
+    from lhf_hf.utils.outputs import (  # deferred: heavy (pyarrow, via utils.io)
+        COMPLETED,
+        DISCARDED,
+        PUSHES,
+    )
 
-    said = []
+    said = list(PUSHES)
     if COMPLETED:
         said.append("after it completed " + ", ".join(f"the {k} {p}" for k, p in COMPLETED))
     for kind, path, removed in DISCARDED:

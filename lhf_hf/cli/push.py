@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
         revision=options.revision,
         token=options.token,
         commit_message=options.message,
+        source_repo=options.source_repo,
     )
     print(json.dumps(result, indent=2))
     print(

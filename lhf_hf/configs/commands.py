@@ -93,6 +93,10 @@ class PushOptions:
     revision: the branch to commit to (created if absent); None = main.
     token: a write token; None = the logged-in one (``hf auth login`` or ``HF_TOKEN``).
     message: the commit message; None = one naming the artifact.
+    source_repo: for a selection made from a local dataset: the Hub dataset repo
+        ``ORG/NAME[@REV]`` that dataset was pushed to, checked to hold the same data, then named
+        (at its commit) in the card's train command and the pushed record; None = the card says
+        ``DATASET``.
     """
 
     path: str
@@ -101,6 +105,7 @@ class PushOptions:
     revision: str | None = None
     token: str | None = None
     message: str | None = None
+    source_repo: str | None = None
 
 
 @dataclass(frozen=True)

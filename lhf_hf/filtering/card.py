@@ -18,11 +18,17 @@ def _fmt(x) -> str:
     return "-" if x is None else f"{x:.3f}"
 
 
-def render_selection_card(path: str | Path, load_path: str | None = None) -> str:
-    """Card text of the selection folder ``path``; its snippets load it from ``load_path``."""
+def render_selection_card(
+    path: str | Path, load_path: str | None = None, source: str | None = None
+) -> str:
+    """Card text of the selection folder ``path``; its snippets load it from ``load_path``;
+    ``source``: the Hub repo its source dataset was pushed to (checked by the caller), in place of
+    the recorded one."""
     path = Path(path)
     meta = read_json(path / CONFIG_FILE)
     flt, src, summary = meta["filter"], meta["source"], meta.get("summary", {})
+    if source is not None:
+        src = {**src, "path": source}
     env_id = src.get("env_id", "?")
     label = (
         f"LHF {flt['strategy']}" if flt["strategy"] in ("linear", "softmax") else flt["strategy"]
@@ -49,7 +55,7 @@ def render_selection_card(path: str | Path, load_path: str | None = None) -> str
         dataset_arg=dataset_arg,
         dataset_note=(
             f"(`DATASET`: the source `{Path(source).name}` was a local folder; push it with "
-            "`lhf push` and name its repo)"
+            "`lhf push`, then name its repo here, or push this selection with `--source-repo`)"
             if dataset_arg == "DATASET"
             else ""
         ),

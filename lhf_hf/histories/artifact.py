@@ -36,5 +36,5 @@ class HistoriesArtifact(HubArtifact):
             return [str(exc)]
 
     @classmethod
-    def card(cls, path: Path, repo_id: str) -> str:
+    def card(cls, path: Path, repo_id: str, source: str | None = None) -> str:
         return render_card(HistoryDataset(path), load_path=repo_id)

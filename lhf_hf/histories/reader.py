@@ -15,6 +15,7 @@ from lhf_hf import constants as C
 from lhf_hf.errors import NotFoundError, UnknownNameError, UserError
 from lhf_hf.utils.hub import resolve, source_of
 from lhf_hf.utils.io import read_json
+from lhf_hf.utils.outputs import MARKER
 
 from .checks import check_dataset
 from .schema import TaskHistories, task_histories_from_frames
@@ -92,6 +93,25 @@ def _in_memory(table: pa.Table) -> datasets.Dataset:
     return datasets.Dataset(InMemoryTable(table))
 
 
+def _missing_info_hint(root: Path) -> str:
+    """Why a folder lacks ``meta/info.json``, from its manifest: removed from a finished dataset,
+    or a collection that never finished (``info.json`` is written last)."""
+    try:
+        files = read_json(root / MARKER).get("files")
+    except (OSError, ValueError, AttributeError):
+        files = None
+    if isinstance(files, dict):
+        return (
+            " (the manifest of the finished dataset lists it: it was removed since; restore it "
+            "or collect again)"
+            if C.INFO_PATH in files
+            else ""
+        )
+    if (root / C.CONFIG_PATH).exists():
+        return " (an unfinished collection: run it again with --resume)"
+    return ""
+
+
 class HistoryDataset:
     """A learning-history dataset on disk.
 
@@ -109,13 +129,9 @@ class HistoryDataset:
         if not self.root.is_dir():
             raise NotFoundError(f"no dataset folder at {self.root}")
         if not info_file.exists():
-            hint = (
-                " (an unfinished collection: run it again with --resume)"
-                if (self.root / C.CONFIG_PATH).exists()
-                else ""
-            )
             raise DatasetFormatError(
-                f"{self.root} is not a learning-history dataset: {C.INFO_PATH} is missing{hint}"
+                f"{self.root} is not a learning-history dataset: {C.INFO_PATH} is missing"
+                f"{_missing_info_hint(self.root)}"
             )
         self.info = _read_object(info_file)
         if self.info.get("codebase_version") != C.CODEBASE_VERSION:

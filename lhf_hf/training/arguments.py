@@ -153,7 +153,7 @@ def refused(cfg: TrainConfig, who: str, exc: Exception) -> UserError:
     """What TrainingArguments or Trainer said of a run with ``--training-arg``, as one line (e.g.
     ``eval_strategy="steps"``: lhf trains without an evaluation set)."""
     given = ", ".join(f"{k}={v!r}" for k, v in cfg.training_args.items())
-    return UserError(f"{who} refused --training-arg {given}: {exc}")
+    return UserError(f"TrainConfig.training_args ({given}): refused by {who}: {exc}")
 
 
 # ---------------------------------------------------------------------------- values by type
@@ -209,7 +209,7 @@ def _json(text: str) -> Any:
     try:
         return json.loads(text)
     except ValueError as exc:
-        raise UserError(f"--training-arg: {text!r} is not valid JSON ({exc})") from None
+        raise UserError(f"TrainConfig.training_args: {text!r} is not valid JSON ({exc})") from None
 
 
 def _fits(value: Any, member: Any) -> bool:

@@ -52,7 +52,7 @@ class CheckpointArtifact(HubArtifact):
         load_model(str(path))
 
     @classmethod
-    def published(cls, path: Path) -> dict[str, bytes]:
+    def published(cls, path: Path, source: str | None = None) -> dict[str, bytes]:
         """A checkpoint saved before checkpoints carried their code gets it in the upload, and
         ``auto_map`` in its ``config.json`` (so transformers alone loads the repo); {} otherwise."""
         config = read_json(path / "config.json")
@@ -98,7 +98,7 @@ class CheckpointArtifact(HubArtifact):
         return []
 
     @classmethod
-    def card(cls, path: Path, repo_id: str) -> str:
+    def card(cls, path: Path, repo_id: str, source: str | None = None) -> str:
         evals = path / MODEL_EVALS_FILE
         return render_model_card(
             AutoConfig.from_pretrained(path, trust_remote_code=False),

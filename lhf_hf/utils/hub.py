@@ -45,7 +45,7 @@ from lhf_hf import constants as C
 from lhf_hf.errors import NotFoundError, UserRuntimeError
 
 from .io import read_json, sha256_file
-from .outputs import MARKER, check_manifest
+from .outputs import MARKER, PUSHES, check_manifest
 
 #: Never uploaded: Trainer's intermediate checkpoints (optimizer state), hidden and private files,
 #: half-written temporaries and the pickled TrainingArguments.
@@ -125,11 +125,16 @@ def resolve(spec: str | Path, repo_type: str, what: str = "artifact") -> Path:
     return path
 
 
-def download(ref: HubRef, repo_type: str) -> Path:
-    """``snapshot_download`` with errors that say what is wrong."""
+def download(ref: HubRef, repo_type: str, files: list[str] | None = None) -> Path:
+    """``snapshot_download`` (of ``files`` only, if given) with errors that say what is wrong.
+    The folder returned is named by the commit it holds."""
     where = f"{repo_type} repo {ref} on {endpoint()}"
     try:
-        return Path(snapshot_download(ref.repo_id, repo_type=repo_type, revision=ref.revision))
+        return Path(
+            snapshot_download(
+                ref.repo_id, repo_type=repo_type, revision=ref.revision, allow_patterns=files
+            )
+        )
     except HFValidationError as exc:
         raise HubError(f"invalid repo id {str(ref)!r}: {exc}") from None
     except RevisionNotFoundError:
@@ -399,6 +404,14 @@ def push_folder(
             f"push of {path} to {repo_type} repo {repo_id} on {endpoint()} failed at '{step}' "
             f"(nothing was committed): {cause}"
         ) from None
+    except BaseException:  # an interrupt: said with it (lhf_hf.cli.main)
+        PUSHES.append(
+            f"interrupted at '{step}': the Hub applies a commit whole, so {repo_id} holds its "
+            "previous files or all of this push's; run `lhf push` again to be sure"
+            if step == "commit"  # the request may have reached the server
+            else f"interrupted at '{step}': nothing was committed to {repo_id}"
+        )
+        raise
     if tag is not None:
         try:
             refs = api.list_repo_refs(repo_id, repo_type=repo_type)
@@ -410,6 +423,12 @@ def push_folder(
                 f"{path} was committed to {repo_id} ({info.oid[:12]}) but the {tag} tag could not be "
                 f"set, so LeRobot loaders will not find it: {exc}.  Run `lhf push` again."
             ) from None
+        except BaseException:
+            PUSHES.append(
+                f"{path} was committed to {repo_id} ({info.oid[:12]}) before the {tag} tag was set: "
+                "run `lhf push` again"
+            )
+            raise
     return {
         "repo_id": repo_id,
         "repo_type": repo_type,
@@ -455,18 +474,32 @@ class HubArtifact(ABC):
 
     @classmethod
     @abstractmethod
-    def card(cls, path: Path, repo_id: str) -> str:
-        """The README.md the pushed artifact carries, with load snippets naming ``repo_id``."""
+    def card(cls, path: Path, repo_id: str, source: str | None = None) -> str:
+        """The README.md the pushed artifact carries, with load snippets naming ``repo_id``;
+        ``source``: the pinned Hub repo of the artifact's source (``pin_source``), if given."""
 
     @classmethod
-    def published(cls, path: Path) -> dict[str, bytes]:
+    def published(cls, path: Path, source: str | None = None) -> dict[str, bytes]:
         """Files the push uploads beside the folder's, or instead of them (relative path ->
         content); {}: the folder's files (as ``public_contents`` makes them)."""
         return {}
 
     @classmethod
-    def push(cls, path: str | Path, repo_id: str, **kwargs) -> dict:
-        """Check, render the card, push as one commit: ``{kind, **push_folder's result}``."""
+    def pin_source(cls, path: Path, source_repo: str) -> str:
+        """``ORG/NAME@COMMIT`` of ``source_repo`` once it is checked to hold the data ``path`` was
+        made from; the kinds that record a source override this."""
+        raise HubError(
+            f"{path} is a {cls.kind}: only a selection names the Hub repo of its source dataset "
+            "(--source-repo)"
+        )
+
+    @classmethod
+    def push(
+        cls, path: str | Path, repo_id: str, *, source_repo: str | None = None, **kwargs
+    ) -> dict:
+        """Check, render the card, push as one commit: ``{kind, **push_folder's result}``.
+        ``source_repo``: where the artifact's local source was pushed, named in the card and the
+        pushed records once checked (``pin_source``)."""
         path = Path(path)
         validate_repo_id(repo_id)
         check_pushable(path)  # finished, and unchanged since its command wrote it
@@ -475,15 +508,15 @@ class HubArtifact(ABC):
             raise HubError(
                 f"{path} fails its {cls.kind} checks ({'; '.join(problems[:5])}): not pushed"
             )
-        card = cls.card(path, repo_id)
+        source = None if source_repo is None else cls.pin_source(path, source_repo)
         out = push_folder(
             path,
             repo_id,
             repo_type=cls.repo_type,
-            card=card,
+            card=cls.card(path, repo_id, source),
             what=cls.kind,
             tag=cls.tag,
-            added=cls.published(path),
+            added=cls.published(path, source),
             **kwargs,
         )
         return {"kind": cls.kind, **out}

@@ -55,6 +55,9 @@ COMPLETED: list[tuple[str, Path]] = []
 #: it (an error or an interrupt; ``removed``: the folder was created for it and is gone, else it
 #: was given empty and is empty again): nothing to resume, which ``lhf_hf.cli.main`` says.
 DISCARDED: list[tuple[str, Path, bool]] = []
+#: What an interrupted upload left, one line each (``utils.hub.push_folder``: nothing committed,
+#: or a commit without its tag), said with the interrupt like the two lists above.
+PUSHES: list[str] = []
 
 
 class OutputError(UserError, FileExistsError):

@@ -181,7 +181,7 @@ def test_functions_behind_the_commands_have_the_same_defaults():
     assert same(commands.DeriveOptions, derive_half) == 1
     assert same(output, run_filter) == 2
     assert same(commands.FilterInputs, run_filter) == 1
-    assert same(commands.PushOptions, push, {"message": "commit_message"}) == 4
+    assert same(commands.PushOptions, push, {"message": "commit_message"}) == 5
     assert (
         same(commands.ReproduceOptions, reproduce, {"experiment": "name"}) == 6
     )  # + jobs, objectives

@@ -10,6 +10,7 @@ import yaml
 
 from lhf_hf import constants as C
 from lhf_hf.histories import DatasetFormatError, load_histories
+from lhf_hf.utils.outputs import MARKER
 
 
 def test_load_dataset_default_and_tables(small_darkroom):
@@ -65,8 +66,22 @@ def test_card_and_plot(small_darkroom):
 def test_not_a_dataset(tmp_path):
     with pytest.raises(FileNotFoundError):
         load_histories(tmp_path / "nope")
-    with pytest.raises(DatasetFormatError, match="info.json is missing"):
+    with pytest.raises(DatasetFormatError, match=r"info.json is missing$"):
         load_histories(tmp_path)
+
+
+def test_a_missing_info_json_is_told_apart_by_the_manifest(small_darkroom, tmp_path):
+    """info.json is written last: missing from a finished dataset (its manifest lists it) it was
+    removed; missing where the config exists and no manifest is finished, the collection never
+    ended."""
+    removed = tmp_path / "removed"
+    shutil.copytree(small_darkroom.root, removed)
+    (removed / C.INFO_PATH).unlink()
+    with pytest.raises(DatasetFormatError, match="manifest of the finished dataset lists it"):
+        load_histories(removed)
+    (removed / MARKER).write_text(json.dumps({"kind": "dataset", "files": None}))
+    with pytest.raises(DatasetFormatError, match="an unfinished collection: run it again"):
+        load_histories(removed)
 
 
 def test_malformed_datasets(small_darkroom, tmp_path):

@@ -13,7 +13,9 @@ fake received can be read back through a real Hub mirror (tests/hub/olah_server.
 
 Simplifications, on purpose: every request must carry a bearer token, but any token is accepted;
 ``uploadMode`` is "lfs" for binary suffixes and files >= 10 MiB, "regular" otherwise; no pull
-requests, Xet, multipart LFS, or downloads (reads go through olah).
+requests, Xet or multipart LFS; file downloads (``resolve``) as plain files with the git blob id as
+their ETag, for the reads a push itself makes (``lhf push --source-repo``): the tests' other reads
+go through olah, a real Hub mirror.
 """
 
 from __future__ import annotations
@@ -33,6 +35,14 @@ LFS_SUFFIXES = (".parquet", ".safetensors", ".bin", ".png", ".pt", ".npz", ".arr
 LFS_MIN_SIZE = 10 << 20
 _API = re.compile(r"^/api/(models|datasets)/([^/]+)/([^/]+)(?:/(.*))?$")
 _LFS_BATCH = re.compile(r"^/(?:(datasets)/)?([^/]+)/([^/]+?)\.git/info/lfs/objects/batch$")
+_RESOLVE = re.compile(r"^/(?:(datasets)/)?([^/]+)/([^/]+)/resolve/([^/]+)/(.+)$")
+
+
+class RawFile:
+    """A file download's answer: its bytes and the headers ``hf_hub_download`` reads."""
+
+    def __init__(self, data: bytes, headers: dict[str, str]):
+        self.data, self.headers = data, headers
 
 
 class HubProtocolError(Exception):
@@ -65,6 +75,9 @@ class FakeHub:
         #: Fault injection: reject this many upcoming commit requests with a 500 (the repo stays
         #: as it was, as on the Hub).
         self.fail_commits = 0
+        #: Called when a commit request arrives, before it is applied or refused (e.g. to
+        #: interrupt the client while it waits).
+        self.on_commit = None
 
     # ------------------------------------------------------------------ store
     def repo_path(self, repo_type: str, org: str, name: str) -> Path:
@@ -239,6 +252,17 @@ class FakeHub:
             "siblings": [{"rfilename": f} for f in files],
         }
 
+    def resolve(self, repo: Path, revision: str, path: str) -> RawFile:
+        sha = self._rev(repo, revision)
+        try:
+            oid = _git(repo, "rev-parse", f"{sha}:{path}").strip()
+        except subprocess.CalledProcessError:
+            raise HubProtocolError(404, f"Entry not found: {path}", "EntryNotFound") from None
+        data = subprocess.run(
+            ["git", "cat-file", "blob", oid], cwd=repo, check=True, capture_output=True
+        ).stdout
+        return RawFile(data, {"X-Repo-Commit": sha, "ETag": f'"{oid}"'})
+
     # ------------------------------------------------------------------ dispatch
     def handle(self, method: str, url: str, headers, body: bytes, base: str) -> tuple[int, object]:
         parts = urlsplit(url)
@@ -264,6 +288,9 @@ class FakeHub:
         if m and method == "POST":
             self._repo(m[1] or "models", m[2], m[3])
             return 200, self.lfs_batch(json.loads(body), base)
+        m = _RESOLVE.match(path)
+        if m and method in ("GET", "HEAD"):
+            return 200, self.resolve(self._repo(m[1] or "models", m[2], m[3]), m[4], unquote(m[5]))
         m = _API.match(path)
         if m is None:
             raise HubProtocolError(404, f"the fake hub has no route for {method} {path}")
@@ -285,6 +312,8 @@ class FakeHub:
         if method == "POST" and action == "preupload":
             return 200, self.preupload(repo, arg, json.loads(body))
         if method == "POST" and action == "commit":
+            if self.on_commit is not None:
+                self.on_commit()
             if self.fail_commits > 0:
                 self.fail_commits -= 1
                 raise HubProtocolError(500, "Internal Error - We're working hard to fix this")
@@ -353,9 +382,14 @@ class FakeHub:
                     code = None
                 except HubProtocolError as exc:
                     status, payload, code = exc.status, {"error": exc.message}, exc.code
-                data = json.dumps(payload).encode()
+                raw = isinstance(payload, RawFile)
+                data = payload.data if raw else json.dumps(payload).encode()
                 self.send_response(status)
-                self.send_header("Content-Type", "application/json")
+                for key, value in (payload.headers if raw else {}).items():
+                    self.send_header(key, value)
+                self.send_header(
+                    "Content-Type", "application/octet-stream" if raw else "application/json"
+                )
                 self.send_header("Content-Length", str(len(data)))
                 if code:
                     self.send_header("X-Error-Code", code)

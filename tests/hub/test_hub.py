@@ -6,7 +6,9 @@ any non-loopback connection (exit code 97)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -249,6 +251,43 @@ print(json.dumps({{"counts": sel.counts(), "objective": m.config.objective}}))
 
 
 @pytest.mark.slow
+def test_a_selection_names_its_pushed_source(
+    small_darkroom, small_darkroom_batched, checkpoint, fake_hub, olah, hub_client
+):
+    """`lhf push SELECTION --source-repo`: the source dataset's repo is checked (fingerprints),
+    pinned at its commit and named in the card's train command, which runs as written, and in the
+    pushed record; a repo that does not hold the selection's source is refused, nothing pushed."""
+    ds_repo, sel_repo = "lhf-test/sourced", "lhf-test/sourced-lhf"
+    ds = _last_json(
+        _ok(hub_client(fake_hub.endpoint, PUSH, str(small_darkroom_batched.root), ds_repo))
+    )
+    other = "lhf-test/other-data"
+    _ok(hub_client(fake_hub.endpoint, PUSH, str(small_darkroom.root), other))
+    sel = str(checkpoint / "sel")
+    _fails(
+        hub_client(fake_hub.endpoint, CLI, "push", sel, "--repo-id", sel_repo, "--source-repo", other),
+        f"{other}@", "is not the dataset", "fingerprint", "not pushed",
+    )  # fmt: skip
+    _fails(
+        hub_client(fake_hub.endpoint, CLI, "push", str(small_darkroom.root), "--repo-id", other,
+                   "--source-repo", ds_repo),
+        "only a selection names",
+    )  # fmt: skip
+    assert not fake_hub.repo_path("datasets", *sel_repo.split("/")).exists()
+
+    _ok(hub_client(fake_hub.endpoint, CLI, "push", sel, "--repo-id", sel_repo,
+                   "--source-repo", ds_repo))  # fmt: skip
+    git_repo = fake_hub.repo_path("datasets", *sel_repo.split("/"))
+    pinned = f"{ds_repo}@{ds['commit']}"
+    card = (git_repo / "README.md").read_text()
+    assert f"--dataset {pinned} --selection {sel_repo} " in card and "DATASET" not in card
+    assert json.loads((git_repo / "filter_config.json").read_text())["source"]["path"] == pinned
+    command = next(line for line in card.splitlines() if line.startswith("lhf train "))
+    _ok(hub_client(olah, CLI, *command.split()[1:], "--preset", "tiny", "--max-steps", "2",
+                   "--batch-size", "4", "--no-progress"))  # fmt: skip
+
+
+@pytest.mark.slow
 def test_train_push_to_hub(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     from lhf_hf.modeling import MODEL_CODE_FILES
 
@@ -418,6 +457,25 @@ def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     git_repo = fake_hub.repo_path("datasets", "lhf-test", "rejected")
     assert _git(git_repo, "rev-list", "--count", "main") == "1"  # the Hub's initial commit only
     assert _git(git_repo, "tag") == ""
+
+    # Ctrl-C while the commit request waits: `lhf push` says what the repo may hold (the request
+    # may have reached the server); this fake then refuses the commit, so the repo is unchanged.
+    pid_file = tmp_path / "client.pid"
+    pid_cli = f"import os\nopen({str(pid_file)!r}, 'w').write(str(os.getpid()))\n{CLI}"
+    fake_hub.on_commit = lambda: os.kill(int(pid_file.read_text()), signal.SIGINT)
+    fake_hub.fail_commits = 1
+    try:
+        proc = hub_client(fake_hub.endpoint, pid_cli, "push", ds, "--repo-id", "lhf-test/halted")
+    finally:
+        fake_hub.on_commit, fake_hub.fail_commits = None, 0
+    assert proc.returncode == 130, proc.stderr[-2000:]
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "lhf push: interrupted (interrupted at 'commit': the Hub applies a commit whole, so "
+        "lhf-test/halted holds its previous files or all of this push's; run `lhf push` again to "
+        "be sure)"
+    )
+    halted = fake_hub.repo_path("datasets", "lhf-test", "halted")
+    assert _git(halted, "rev-list", "--count", "main") == "1"
 
 
 @pytest.mark.slow

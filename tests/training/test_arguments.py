@@ -130,7 +130,7 @@ def test_other_arguments_and_the_flags_reach_the_trainer(small_darkroom, tmp_pat
     assert trainer.lhf_identity["train"]["training_args"] == prov["train"]["training_args"]
     refused = TrainConfig(**{**cfg.to_dict(), "training_args": {"eval_strategy": "steps"}})
     with pytest.raises(
-        UserError, match="Trainer refused --training-arg eval_strategy=.steps.: You have set"
+        UserError, match="TrainConfig.training_args .eval_strategy=.steps..: refused by Trainer: You have set"
     ):
         build_trainer(refused)
 
@@ -187,6 +187,6 @@ def test_what_trainingarguments_accepts_but_a_run_cannot_use_is_refused_first(
         pytest.skip("fp16 runs on a GPU")
     out = tmp_path / "m"
     cfg = TrainConfig(dataset=str(small_darkroom.root), out=str(out), training_args=given, **BASE)
-    with pytest.raises(UserError, match=f"lhf refused --training-arg .*: {match}"):
+    with pytest.raises(UserError, match=f"TrainConfig.training_args .*: refused by lhf: {match}"):
         train(cfg)
     assert not out.exists()
