@@ -3,7 +3,7 @@
     python benchmarks/bench_icrl_curve.py --dataset data/dr50 [--objectives ad dpt dicp]
         [--minutes 15] [--every 2.5] [--episodes 50] [--seeds 0 1 2] [--lr 3e-3]
         [--steps N --every-steps M] [--train-seeds 0 1 2] [--plan] [--out results/train/icrl_curve]
-        [--resume]
+        [--attention-kernel auto|kernel|torch] [--resume]
 
 Trains each objective on ``--dataset`` (``lhf train``'s Trainer, the given settings) for
 ``--minutes`` of wall time, saving a checkpoint every ``--every`` minutes of training (a wall-clock
@@ -161,6 +161,9 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=3e-3)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--preset", default="paper")
+    p.add_argument("--attention-kernel", default="auto", choices=["auto", "kernel", "torch"],
+                   help="TrainConfig.attention_kernel: the training attention (a learning curve "
+                        "of each, same seeds, shows they learn alike)")  # fmt: skip
     p.add_argument("--plan", action="store_true",
                    help="also evaluate DICP checkpoints with planning")  # fmt: skip
     p.add_argument("--plan-gate", default="always", choices=["always", "reward_seen"],
@@ -292,7 +295,8 @@ def _train_config(args, objective: str, train_seed: int, out: str) -> TrainConfi
         max_steps, save_steps = args.steps, args.every_steps or args.steps
     return TrainConfig(dataset=args.dataset, objective=objective, out=out, preset=args.preset,
                        max_steps=max_steps, batch_size=args.batch_size, lr=args.lr,
-                       save_steps=save_steps, logging_steps=100, seed=train_seed)  # fmt: skip
+                       save_steps=save_steps, logging_steps=100, seed=train_seed,
+                       attention_kernel=args.attention_kernel)  # fmt: skip
 
 
 def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
