@@ -6,8 +6,13 @@ episode.  The paper's relative enhancement is
 
     E = (mean return over the whole curve with LHF - the same without) / the same without,
 
-computed from the means over runs; its +/- is the std over runs of E computed run by run (pairing
-runs in the given order) when both sides have the same number of runs.
+computed from the means over runs.  With paired runs (the same number on both sides, paired in
+the given order: same seed and split): its +/- is the sample std over runs of E computed run by
+run, its 95 % interval is of this E itself (the ratio of the two means: the delta method on the
+paired run means, ``_ratio_interval``), and the verdict's test is the paired t-interval of the
+return differences.  Every other +/- is a sample std over runs (n - 1).  E is flagged where the
+baseline's return is near zero (below ``NEAR_ZERO`` of the env's mean optimal return, on the
+envs that know it): a ratio on a small base says little (issue 55's independent arm, 0.45).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from lhf_hf.envs import get_spec
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.training.card import is_seen
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
@@ -160,9 +166,7 @@ def _check_comparable(runs: list[dict], base: dict, filt: dict) -> None:
                 f"{', '.join(f'{k}={v!r}' for k, v in key if k in keys)} ({', '.join(paths)})"
                 for key, paths in settings.items()
             )
-            raise UserError(
-                f"{backbone} runs were evaluated with different settings: {shown}"
-            )
+            raise UserError(f"{backbone} runs were evaluated with different settings: {shown}")
         if len(b) == len(f):
             for rb, rf in zip(b, f, strict=True):
                 if _tasks_key(rb) != _tasks_key(rf):
@@ -193,6 +197,31 @@ def compare(
         return _compare(baseline, lhf, out)
 
 
+#: E is flagged when the baseline's mean return is below this share of the env's mean optimal
+#: return: a relative change of a near-zero return is mostly noise in its denominator.
+NEAR_ZERO = 0.1
+
+
+def _near_zero(env_id: str, baseline_mean: float) -> str | None:
+    """E's note when the baseline's return is near zero for ``env_id``; None otherwise (or when the
+    env has no known optimal return, as Meta-World)."""
+    spec = get_spec(env_id)
+    if spec.optimal_returns is None:
+        return None
+    scale = float(np.mean(spec.optimal_returns()))
+    if baseline_mean >= NEAR_ZERO * scale:
+        return None
+    return (
+        f"the baseline's return {baseline_mean:.2f} is near zero (below {NEAR_ZERO:.0%} of the "
+        f"env's mean optimal return {scale:.1f}): E is a ratio on a small base"
+    )
+
+
+def _std(x: np.ndarray) -> float:
+    """Sample std over runs (n - 1); 0.0 for one run (no spread measured)."""
+    return float(x.std(ddof=1)) if len(x) > 1 else 0.0
+
+
 def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dict:
     base, filt = _group(baseline, "baseline"), _group(lhf, "--lhf")
     runs = [r for rs in (*base.values(), *filt.values()) for r in rs]
@@ -207,6 +236,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             f"backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
         )
     _check_comparable(runs, base, filt)
+    env_id = next(iter(envs))
     rows, curves = [], {}
     for backbone in sorted(base):
         b = np.array([r["mean_curve"] for r in base[backbone]])  # (runs, E)
@@ -220,10 +250,11 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         paired = len(mb) == len(mf) and len(mb) > 1
         if paired and np.all(mb != 0):
             per_run = (mf - mb) / mb  # (runs,) E of each paired run (same seed and split)
-            e_std = float(np.std(per_run, ddof=0))
-            # 95% confidence interval of the mean per-run E: with 2 or 3 runs it is wide
-            # (t = 12.7 / 4.3), which is the honest reading
-            e_ci = _t_interval(per_run)
+            e_std = float(np.std(per_run, ddof=1))
+        if paired and e is not None:
+            # 95% interval of the E printed (with 2 or 3 runs it is wide: t = 12.7 / 4.3, which
+            # is the honest reading)
+            e_ci = _ratio_interval(mb, mf)
         if paired:
             # The verdict's test: the paired t-test on the runs' return differences (same seed
             # and split). A per-run ratio divides by that run's baseline return, so one weak
@@ -238,13 +269,15 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "runs_baseline": len(mb),
                 "runs_lhf": len(mf),
                 "baseline_mean": float(mb.mean()),
-                "baseline_std": float(mb.std()),
+                "baseline_std": _std(mb),
                 "lhf_mean": float(mf.mean()),
-                "lhf_std": float(mf.std()),
+                "lhf_std": _std(mf),
                 "baseline_final": float(b[:, -tail:].mean()),
                 "lhf_final": float(f[:, -tail:].mean()),
                 "E": None if e is None else float(e),
-                "E_note": "undefined: the baseline's mean return is 0" if e is None else None,
+                "E_note": "undefined: the baseline's mean return is 0"
+                if e is None
+                else _near_zero(env_id, float(mb.mean())),
                 "E_std": e_std,
                 "E_ci95": e_ci,
                 "diff": float((mf - mb).mean()) if paired else None,
@@ -256,7 +289,6 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             }
         )
         curves[backbone] = {"baseline": b, "lhf": f}
-    env_id = envs.pop()
     table = markdown_table(rows, env_id)
     result = {"env_id": env_id, "episodes": episodes.pop(), "rows": rows, "table": table}
     if out is not None:
@@ -267,6 +299,18 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             curves, out / "compare.png", title=f"{env_id}: baseline (dashed) vs LHF (solid)"
         )
     return result
+
+
+def _ratio_interval(b: np.ndarray, f: np.ndarray) -> list[float]:
+    """95% interval of E = mean(f) / mean(b) - 1 from paired run means ``b``, ``f`` (runs,): the
+    delta method, Var(E) ~ (s_d^2 / B^2 + D^2 s_b^2 / B^4 - 2 D s_db / B^3) / n with d = f - b,
+    D and B the means, sample (co)variances, and Student t with n - 1 degrees of freedom."""
+    n, d = len(b), f - b
+    mb, md = b.mean(), d.mean()
+    cov = np.cov(np.stack([d, b]), ddof=1)  # [[s_d^2, s_db], [s_db, s_b^2]]
+    var = (cov[0, 0] / mb**2 + md**2 * cov[1, 1] / mb**4 - 2 * md * cov[0, 1] / mb**3) / n
+    half = stats.t.ppf(0.975, n - 1) * math.sqrt(max(var, 0.0))
+    return [float(md / mb - half), float(md / mb + half)]
 
 
 def _t_interval(x: np.ndarray) -> list[float]:
@@ -299,6 +343,7 @@ def markdown_table(rows: list[dict], env_id: str) -> str:
             if r["E"] is None
             else f"{100 * r['E']:+.1f}"
             + (f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else "")
+            + (" (baseline near 0)" if r.get("E_note") else "")
         )
         lines.append(
             f"| {r['backbone']} | {pm(r['baseline_mean'], r['baseline_std'])} | {pm(r['lhf_mean'], r['lhf_std'])} "

@@ -265,18 +265,45 @@ def test_compare_relative_enhancement_by_hand(tmp_path):
     row = r["rows"][0]
     assert row["backbone"] == "AD" and row["baseline_mean"] == 2 and row["lhf_mean"] == 3.5
     assert np.isclose(row["E"], (3.5 - 2) / 2)
-    assert np.isclose(row["E_std"], np.std([0.5, 1.0]))  # per-run E: (3-2)/2, (4-2)/2
-    # 95% CI of the mean per-run E: 0.75 +- t(0.975, 1) x s / sqrt(2), s = 0.3536, t = 12.706
-    half = 12.7062 * np.std([0.5, 1.0], ddof=1) / np.sqrt(2)
+    # the sample std (n - 1) of the per-run E: (3-2)/2, (4-2)/2
+    assert np.isclose(row["E_std"], np.std([0.5, 1.0], ddof=1))
+    # 95% interval of E itself (delta method): d = 1, 2 (mean 1.5, s_d^2 = 0.5), b = 2, 2 (no
+    # spread): Var(E) = (0.5 / 2^2) / 2 = 0.0625, E 0.75 +- t(0.975, 1) x 0.25, t = 12.706
+    half = 12.7062 * 0.25
     assert np.allclose(row["E_ci95"], [0.75 - half, 0.75 + half], atol=1e-4)
+    assert row["E_note"] is None  # 2 is not near zero on Darkroom (mean optimal return 16.5)
     # the paired return differences 3 - 2, 4 - 2: mean 1.5, s = 0.7071, the verdict's interval
     assert row["baseline_run_means"] == [2, 2] and row["lhf_run_means"] == [3, 4]
     half = 12.7062 * np.std([1.0, 2.0], ddof=1) / np.sqrt(2)
     assert row["diff"] == 1.5 and np.allclose(row["diff_ci95"], [1.5 - half, 1.5 + half], atol=1e-4)
-    assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.50 | +75.0 ± 25.0 |" in r["table"]
+    assert "| AD | 2.00 ± 0.00 | 3.50 ± 0.71 | +75.0 ± 35.4 |" in r["table"]
     assert r["table"].rstrip().endswith(f"| 2/2 | +1.50 ({1.5 - half:+.2f} .. {1.5 + half:+.2f}) |")
     assert (tmp_path / "cmp" / "compare.png").stat().st_size > 0
     assert (tmp_path / "cmp" / "compare.md").read_text().startswith("| darkroom |")
+
+
+def test_the_interval_of_e_is_of_the_e_printed_and_a_near_zero_baseline_is_flagged(tmp_path):
+    """Three paired runs, by hand: b = 10, 12, 8 and f = 12, 13, 10: E = 11.667 / 10 - 1 = 0.1667;
+    d = 2, 1, 2 (mean 5/3, s_d^2 = 1/3), s_b^2 = 4, s_db = -1: Var(E) = (1/3 / 100 + (25/9) x 4 /
+    10^4 + 2 x (5/3) / 10^3) / 3 = 0.0025926, half = t(0.975, 2) 4.3027 x 0.050918 = 0.21908."""
+    base = [fake_eval(tmp_path / f"b{i}", "ad", [v, v]) for i, v in enumerate([10, 12, 8])]
+    lhf = [fake_eval(tmp_path / f"l{i}", "ad", [v, v]) for i, v in enumerate([12, 13, 10])]
+    row = compare(base, lhf)["rows"][0]
+    assert np.isclose(row["E"], 1 / 6)
+    assert np.allclose(row["E_ci95"], [1 / 6 - 0.21908, 1 / 6 + 0.21908], atol=1e-4)
+    assert np.isclose(row["baseline_std"], 2.0) and np.isclose(
+        row["lhf_std"], np.std([12, 13, 10], ddof=1)
+    )
+    # the same differences on a baseline near zero (below 10 % of Darkroom's 16.5): flagged
+    base = [fake_eval(tmp_path / f"z{i}", "ad", [v, v]) for i, v in enumerate([0.4, 0.5, 0.45])]
+    lhf = [fake_eval(tmp_path / f"y{i}", "ad", [v, v]) for i, v in enumerate([0.6, 0.7, 0.8])]
+    r = compare(base, lhf)
+    assert "near zero" in r["rows"][0]["E_note"] and "(baseline near 0)" in r["table"]
+    # Meta-World knows no optimal return: never flagged
+    mw = {"env": "metaworld-reach-wall", "tasks": (0, 1)}
+    base = [fake_eval(tmp_path / f"m{i}", "ad", [v, v], **mw) for i, v in enumerate([0.4, 0.5])]
+    lhf = [fake_eval(tmp_path / f"n{i}", "ad", [v, v], **mw) for i, v in enumerate([0.6, 0.7])]
+    assert compare(base, lhf)["rows"][0]["E_note"] is None
 
 
 def test_compare_errors(tmp_path):
@@ -419,7 +446,7 @@ def test_compare_with_a_zero_baseline_writes_valid_json(tmp_path):
     row = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in compare.json"))["rows"][0]
     assert row["E"] is None and "baseline's mean return is 0" in row["E_note"]
     assert row["E_std"] is None and row["diff"] == 1.5
-    assert "| AD | 0.00 ± 0.00 | 1.50 ± 0.50 | undefined (baseline 0) |" in r["table"]
+    assert "| AD | 0.00 ± 0.00 | 1.50 ± 0.71 | undefined (baseline 0) |" in r["table"]
     from lhf_hf.reproduce.report import verdict
 
     assert verdict(None, None, None, None) == "undefined (baseline return 0)"
