@@ -246,7 +246,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         # JSON, which stays valid JSON; NaN is not), and the paired difference still says which
         # arm returned more
         e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else None
-        e_std = e_ci = diff_ci = None
+        e_std = e_ci = diff_ci = mde = None
         paired = len(mb) == len(mf) and len(mb) > 1
         if paired and np.all(mb != 0):
             per_run = (mf - mb) / mb  # (runs,) E of each paired run (same seed and split)
@@ -262,6 +262,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             # effect however alike the differences are; with positive baseline returns (the
             # gridworlds' and Meta-World's are >= 0) the difference has the sign of E.
             diff_ci = _t_interval(mf - mb)
+            mde = _detectable(mf - mb)
         tail = max(1, b.shape[1] // 10)
         rows.append(
             {
@@ -282,6 +283,8 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "E_ci95": e_ci,
                 "diff": float((mf - mb).mean()) if paired else None,
                 "diff_ci95": diff_ci,
+                "diff_mde80": mde,
+                "E_mde80": None if mde is None or e is None else mde / float(mb.mean()),
                 "baseline_run_means": mb.tolist(),
                 "lhf_run_means": mf.tolist(),
                 "baseline_runs": [r["_path"] for r in base[backbone]],
@@ -311,6 +314,17 @@ def _ratio_interval(b: np.ndarray, f: np.ndarray) -> list[float]:
     var = (cov[0, 0] / mb**2 + md**2 * cov[1, 1] / mb**4 - 2 * md * cov[0, 1] / mb**3) / n
     half = stats.t.ppf(0.975, n - 1) * math.sqrt(max(var, 0.0))
     return [float(md / mb - half), float(md / mb + half)]
+
+
+def _detectable(d: np.ndarray) -> float:
+    """The smallest mean paired difference the verdict's test (two-sided, 5 %) detects with 80 %
+    power at the spread of ``d`` (runs,): (t(0.975, n-1) + t(0.8, n-1)) x s_d / sqrt(n).  With
+    the baseline's mean it is the minimum detectable E (``E_mde80``): a cell whose effect is below
+    it needs more runs before its verdict means anything."""
+    n = len(d)
+    return float(
+        (stats.t.ppf(0.975, n - 1) + stats.t.ppf(0.8, n - 1)) * d.std(ddof=1) / math.sqrt(n)
+    )
 
 
 def _t_interval(x: np.ndarray) -> list[float]:

@@ -291,6 +291,10 @@ def test_the_interval_of_e_is_of_the_e_printed_and_a_near_zero_baseline_is_flagg
     row = compare(base, lhf)["rows"][0]
     assert np.isclose(row["E"], 1 / 6)
     assert np.allclose(row["E_ci95"], [1 / 6 - 0.21908, 1 / 6 + 0.21908], atol=1e-4)
+    # minimum detectable difference at 80 % power: (t(0.975, 2) 4.3027 + t(0.8, 2) 1.0607) x
+    # s_d 0.57735 / sqrt(3) = 1.7879; over the baseline's 10: E 0.179
+    assert np.isclose(row["diff_mde80"], 1.7879, atol=1e-3)
+    assert np.isclose(row["E_mde80"], 0.17879, atol=1e-4)
     assert np.isclose(row["baseline_std"], 2.0) and np.isclose(
         row["lhf_std"], np.std([12, 13, 10], ddof=1)
     )
