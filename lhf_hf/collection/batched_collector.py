@@ -1,6 +1,6 @@
 """The batched collector: every PPO learner of a chunk of gridworld tasks trained at once.
 
-Same protocols as the SB3 collector (``paper``, ``independent``, ``noisy``), same PPO (see
+Same protocols as the SB3 collector (``paper``, ``independent``, ``noisy``, ``learners``), same PPO (see
 ``batched_ppo``), same observation encoding (the (row, col) state as float, what SB3's MlpPolicy
 sees), same recorder semantics (true final state, oracle action before the step), same writer.
 All environments of a chunk are stepped by one ``BatchedGridworld``.
@@ -84,10 +84,8 @@ def collect_chunk(
     spec = get_spec(config.env_id)
     H, steps, p = config.histories, config.steps, config.ppo
     n_random = config.num_random_histories
-    if config.protocol == "independent":
-        per_task, E = H, 1  # H learners x 1 stream
-    else:
-        per_task, E = 1, H - n_random  # 1 learner x (H - n_random) streams
+    per_task = config.learners_per_task  # learners x E streams each (noisy: random ones aside)
+    E = (H - n_random) // per_task
     seed = chunk_seed(config.seed, chunk, config.tasks_per_chunk)
     device = check_device(config.device)
     gen = torch.Generator().manual_seed(seed)

@@ -5,6 +5,8 @@ Protocols (docs/design.md section 3; ``CollectConfig.protocol``):
   independent  H learners, each seeded on its own, each acting in one copy.
   noisy        ``paper`` on round(0.7 H) copies + a uniform random policy on the other copies
                (own copies: random transitions never feed the learner's updates).
+  learners     K learners (``CollectConfig.learners``), each seeded on its own, each over H / K
+               copies; learner k's copies -> histories k H / K ... (k + 1) H / K - 1.
 """
 
 from __future__ import annotations
@@ -50,10 +52,8 @@ def plan_task(config: CollectConfig, task: int) -> list[LearnerPlan]:
     H = config.histories
     n_random = config.num_random_histories
     seeds = task_seeds(config.seed, task, H + 1)
-    if config.protocol == "independent":
-        plans = [LearnerPlan(config.algo, 1, seeds[i], i) for i in range(H)]
-    else:  # paper and noisy: one learner over the learner streams
-        plans = [LearnerPlan(config.algo, H - n_random, seeds[0], 0)]
+    K = config.learners_per_task  # paper and noisy: one learner over the learner streams
+    plans = [LearnerPlan(config.algo, (H - n_random) // K, seeds[i], i) for i in range(K)]
     if n_random:
         plans.append(LearnerPlan("random", n_random, seeds[H], len(plans)))
     return plans

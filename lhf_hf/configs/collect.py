@@ -14,7 +14,7 @@ from lhf_hf.errors import OutOfRangeError, UserError
 
 from .types import check_types
 
-Protocol = Literal["paper", "independent", "noisy"]
+Protocol = Literal["paper", "independent", "noisy", "learners"]
 Algo = Literal["ppo", "sac"]
 Collector = Literal["sb3", "batched"]
 #: what ``--collector`` takes: a collector, or ``auto`` (resolved per env and algorithm)
@@ -155,8 +155,11 @@ class CollectConfig:
     histories: learning histories per task (paper: 100).
     steps: transitions per history; a multiple of the env's horizon (paper: 1000, Meta-World 10,000).
     protocol: ``paper`` (one learner per task acting in ``histories`` parallel copies, one history per
-        copy), ``independent`` (one independently seeded learner per history), or ``noisy`` (``paper``
-        with ``noisy_fraction`` of the histories made by a uniform random policy instead).
+        copy), ``independent`` (one independently seeded learner per history), ``noisy`` (``paper``
+        with ``noisy_fraction`` of the histories made by a uniform random policy instead), or
+        ``learners`` (``learners`` independently seeded learners per task, each acting in
+        ``histories / learners`` parallel copies: histories that differ between learners, each
+        learner learning as under ``paper`` from several streams).
     algo: source RL algorithm, ``ppo`` (any env) or ``sac`` (continuous actions only).
     collector: ``auto`` (``batched`` where it applies: PPO on an env with a batched core, the
         gridworlds; else ``sb3``, e.g. SAC or Meta-World), ``sb3`` (Stable-Baselines3, the
@@ -168,6 +171,7 @@ class CollectConfig:
     workers: worker processes collecting tasks in parallel (default: all cores; 1 = in this process).
         It does not change the data.
     noisy_fraction: fraction of random histories under ``noisy``; their count is ``round(f * histories)``.
+    learners: learners per task under ``learners`` (a divisor of ``histories``).
     ppo: PPO settings; defaults to the paper's for the env.
     sac: SAC settings.
     tasks_per_chunk: batched collector: tasks trained together (default: as many as fit in
@@ -195,6 +199,7 @@ class CollectConfig:
     split_seed: int = 0
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
     noisy_fraction: float = 0.3
+    learners: int = 10
     ppo: PPOSettings | None = None
     sac: SACSettings = field(default_factory=SACSettings)
     tasks_per_chunk: int | None = None
@@ -237,6 +242,13 @@ class CollectConfig:
         if self.protocol == "noisy" and self.histories - self.num_random_histories < 1:
             raise UserError(
                 f"CollectConfig: noisy protocol with {self.histories} histories leaves no learner histories"
+            )
+        if self.protocol == "learners" and not (
+            1 <= self.learners <= self.histories and self.histories % self.learners == 0
+        ):
+            raise UserError(
+                f"CollectConfig.learners must divide histories ({self.histories}) under the "
+                f"learners protocol, got {self.learners!r}"
             )
         if isinstance(self.ppo, dict):
             self.ppo = _settings(PPOSettings, self.ppo, "ppo")
@@ -291,6 +303,12 @@ class CollectConfig:
         return round(self.noisy_fraction * self.histories) if self.protocol == "noisy" else 0
 
     @property
+    def learners_per_task(self) -> int:
+        """The learners that make one task's learner histories (random ones aside): 1 under
+        ``paper`` and ``noisy``, one per history under ``independent``."""
+        return {"independent": self.histories, "learners": self.learners}.get(self.protocol, 1)
+
+    @property
     def frames_per_task(self) -> int:
         return self.histories * self.steps
 
@@ -305,6 +323,8 @@ class CollectConfig:
         """The fields that determine the data (``workers`` does not): equal identity = same dataset."""
         d = self.to_dict()
         d.pop("workers")
+        if self.protocol != "learners":
+            d.pop("learners")  # no other protocol reads it (nor did datasets before the field)
         if self.collector == "sb3":
             d.pop("tasks_per_chunk")  # SB3 tasks do not depend on chunks
         if self.device == "cpu":

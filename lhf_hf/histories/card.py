@@ -217,6 +217,8 @@ def _settings(collect: dict) -> list[tuple[str, object]]:
     unused = {"tasks", *({"ppo", "sac"} - {algo})}
     if protocol != "noisy":
         unused.add("noisy_fraction")
+    if protocol != "learners":
+        unused.add("learners")
     if algo != "ppo" or collect.get("collector") != "batched":
         unused.add("ppo_backend")  # only the batched collector's PPO has backends
     return [(k, v) for k, v in collect.items() if k not in unused]
@@ -240,6 +242,9 @@ def _how_collected(collect: dict, lhf: dict) -> str:
         f"({'SB3 `DummyVecEnv`' if collect.get('collector') == 'sb3' else 'stepped together by the batched collector'}); "
         "each copy's stream of transitions is one history (the reference protocol).",
         "independent": f"{H} independently seeded {collect.get('algo', '').upper()} learners per task, one stream each.",
+        "learners": f"{collect.get('learners')} independently seeded {collect.get('algo', '').upper()} learners per "
+        f"task, each acting in {H // max(1, collect.get('learners') or 1)} parallel copies of the task; each copy's "
+        "stream is one history (histories differ between learners, each learner learns from several streams).",
         "noisy": f"as `paper`, but {round(collect.get('noisy_fraction', 0.3) * 100)}% of each task's histories come "
         "from a uniform random policy on their own copies of the task (they never feed the learner's "
         "updates); the logged action is the executed action.",

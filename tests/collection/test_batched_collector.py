@@ -87,9 +87,24 @@ def test_independent_protocol_has_one_learner_per_history(tmp_path):
     assert not np.array_equal(th.actions[0], th.actions[1])
 
 
+def test_learners_protocol_has_learners_over_several_copies_each(tmp_path):
+    """K learners per task, each over H / K copies: the histories table names each history's
+    learner, and a learner's copies and the learners all act differently."""
+    cfg = CollectConfig(**{**CFG, "tasks": "5", "protocol": "learners", "learners": 3})
+    assert cfg.identity()["learners"] == 3 and "learners" not in CollectConfig(**CFG).identity()
+    ds = collect(cfg, tmp_path / "k", progress=False)
+    hist = ds.histories.to_pandas()
+    assert hist[C.LEARNER_INDEX].tolist() == [0, 0, 1, 1, 2, 2]
+    th = ds.task_histories(5)
+    assert not np.array_equal(th.actions[0], th.actions[1])  # two copies of learner 0
+    assert not np.array_equal(th.actions[0], th.actions[2])  # learners 0 and 1
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [
+        (dict(protocol="learners", learners=4), "learners must divide histories"),
+        (dict(protocol="learners", learners=0), "learners must divide histories"),
         (dict(env_id="metaworld-reach", steps=100), "gridworlds only"),
         (dict(tasks_per_chunk=0), "tasks_per_chunk"),
     ],

@@ -19,6 +19,18 @@ def test_plans_per_protocol():
         CollectConfig("darkroom", tasks="0", histories=4, steps=20, protocol="independent"), 0
     )
     assert [p.n_streams for p in indep] == [1, 1, 1, 1] and len({p.seed for p in indep}) == 4
+    k = plan_task(
+        CollectConfig(
+            "darkroom", tasks="0", histories=6, steps=20, protocol="learners", learners=3
+        ),
+        0,
+    )
+    assert [(p.kind, p.n_streams, p.learner_index) for p in k] == [
+        ("ppo", 2, 0),
+        ("ppo", 2, 1),
+        ("ppo", 2, 2),
+    ]
+    assert [p.seed for p in k] == [p.seed for p in indep[:3]]  # the task's seeds, in order
     # seeds depend on (seed, task) only
     assert plan_task(CollectConfig("darkroom", tasks="0,5", histories=4, steps=20), 5) == plan_task(
         CollectConfig("darkroom", tasks="5", histories=4, steps=20), 5
