@@ -49,6 +49,7 @@ from lhf_hf.evaluation.task_batch import make_task_batch
 from lhf_hf.histories.reader import load_histories
 from lhf_hf.modeling import load_model
 from lhf_hf.training import build_trainer
+from lhf_hf.training.trainer import RotateOwnCheckpoints
 from lhf_hf.utils.io import save_figure_atomic, write_json_atomic
 from lhf_hf.utils.outputs import OutputError, output_folder, preflight
 from lhf_hf.utils.versions import library_versions
@@ -310,7 +311,7 @@ def train_and_evaluate(args, objective: str, train_seed: int) -> dict:
         trainer, provenance = build_trainer(_train_config(args, objective, train_seed, str(work)))
         trainer.add_callback(clock)
         trainer.args.disable_tqdm = True
-        trainer.args.save_total_limit = None  # every checkpoint is evaluated
+        trainer.remove_callback(RotateOwnCheckpoints)  # every checkpoint is evaluated
         trainer.train()
     except BaseException:
         if not any(work.iterdir()):

@@ -111,7 +111,7 @@ def training_arguments(cfg: TrainConfig, world: int, progress: bool) -> Training
         max_grad_norm=cfg.max_grad_norm,
         logging_steps=cfg.logging_steps,
         save_steps=cfg.save_steps,
-        save_total_limit=None,  # trainer._RotateOwnCheckpoints keeps the newest 2, and foreign ones
+        save_total_limit=None,  # trainer.RotateOwnCheckpoints keeps the newest 2, and foreign ones
         seed=cfg.seed,
         report_to=cfg.reporters,
         remove_unused_columns=False,

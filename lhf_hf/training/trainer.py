@@ -154,7 +154,7 @@ CHECKPOINT_FILES = re.compile(
 KEEP_CHECKPOINTS = 2
 
 
-class _RotateOwnCheckpoints(TrainerCallback):
+class RotateOwnCheckpoints(TrainerCallback):
     """Keeps the newest ``KEEP_CHECKPOINTS`` checkpoints, as Trainer's ``save_total_limit`` would,
     but never deletes one holding anything Trainer did not write (a user's notes, an evaluation
     ``--out CKPT/eval``): that one stays, and is named once."""
@@ -264,7 +264,7 @@ def build_trainer(cfg: TrainConfig, model_config: ICRLConfig | None = None, prog
             data_collator=collator,
             callbacks=[
                 _Throughput(cfg.batch_size * length * config.tokens_per_transition),
-                _RotateOwnCheckpoints(),
+                RotateOwnCheckpoints(),
             ]
             + ([_PushCheckpoints()] if cfg.push_to_hub else []),
         )

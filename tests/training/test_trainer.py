@@ -515,7 +515,7 @@ def test_rotation_keeps_checkpoints_holding_what_training_did_not_write(tmp_path
     nested evaluation (Trainer's own rotation deletes whatever a checkpoint folder holds)."""
     from types import SimpleNamespace
 
-    from lhf_hf.training.trainer import _RotateOwnCheckpoints
+    from lhf_hf.training.trainer import RotateOwnCheckpoints
 
     for step in (1, 2, 3, 4):
         (tmp_path / f"checkpoint-{step}").mkdir()
@@ -525,7 +525,7 @@ def test_rotation_keeps_checkpoints_holding_what_training_did_not_write(tmp_path
     (tmp_path / "checkpoint-2" / "rng_state.pth").write_text("x")
     for name in MODEL_CODE_FILES:  # the model's code: written by training too
         (tmp_path / "checkpoint-2" / name).write_text("x")
-    _RotateOwnCheckpoints().on_save(
+    RotateOwnCheckpoints().on_save(
         SimpleNamespace(output_dir=str(tmp_path)), SimpleNamespace(is_world_process_zero=True), None
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == [
