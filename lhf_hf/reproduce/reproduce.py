@@ -1,9 +1,5 @@
-"""``reproduce(name, preset, runs, out, work)``: one paper experiment end to end.
-
-Per run r (seed r, train/test split r) and env: collect the train tasks' histories (optionally keep
-the first half of each), one LHF selection per filter arm, per backbone a baseline and an LHF model
-per arm, each evaluated on the run's unseen tasks; then per env and arm ``compare`` over the runs
-and ``report.md``.  Stages are cached under ``work`` by config hash; ``out`` gets only the report.
+"""``reproduce(name, preset, ...)``: one paper experiment end to end (docs/reproduce.md,
+``reproduce.py``), its stages cached under ``work`` by config hash; ``out`` gets only the report.
 """
 
 from __future__ import annotations
@@ -51,11 +47,8 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
     """Every stage of ``exp`` in run order (their folders under ``work``), and
     ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``; also
     ``evals[("selection", env, arm)] -> [filter stage per run]`` (what each selection kept).
-    ``progress``: the stages' progress bars (not part of any hash).
-
-    A stage's hash covers its whole config (every field, defaults included: a changed default
-    re-runs what it changes) and the hashes of the stages it reads.
-    """
+    A stage's hash covers its whole config, defaults included, and the hashes of the stages it
+    reads; ``progress`` (the stages' bars) is in none."""
     stages: list[Stage] = []
     evals: dict[tuple[str, str, str], list[Stage]] = {}
     for run in range(exp.runs):
