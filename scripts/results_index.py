@@ -6,7 +6,8 @@ ROOT, cell by cell, our E beside the paper's.
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
 to run (``scripts/results_coverage.py``); then per table its command and budget, one row per env x
 arm x backbone with our E (+/- its std over paired runs, and its 95 % confidence interval), the
-paper's E, the verdict (``report.verdict``) and the whole-curve returns without and with LHF.
+paper's E, the verdict (``report.verdict``, or ``judged`` for a table made before it) and the
+whole-curve returns without and with LHF.
 Tables written before a field existed show ``-`` there.
 
 Exits 1 when ROOT is missing, empty, a file or one table's folder, 2 when some table's
@@ -16,7 +17,6 @@ Exits 1 when ROOT is missing, empty, a file or one table's folder, 2 when some t
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from pathlib import Path
@@ -28,7 +28,14 @@ from results_coverage import render_coverage
 
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.reproduce.experiment import PRESETS, shadows_shipped, train_settings
-from lhf_hf.reproduce.report import command_line, default_out, objective_of, percent, verdict
+from lhf_hf.reproduce.report import (
+    command_line,
+    default_out,
+    judge,
+    objective_of,
+    percent,
+    verdict,
+)
 from lhf_hf.utils.io import read_json, write_text_atomic
 
 INDEX_FILE = "README.md"
@@ -42,17 +49,28 @@ def _pair(x) -> tuple[float, float] | None:
     return None if lo is None or hi is None else (lo, hi)
 
 
+def judged(e: float | None, std: float | None, ci, diff_ci) -> str:
+    """A recorded row's verdict: ``report.verdict`` where the paired return differences were
+    recorded (``diff_ci``); tables made before that are judged on the 95% interval of the per-run
+    E (``ci``), and older ones on E against its std over the runs."""
+    if diff_ci is None and e is None:  # E undefined (a baseline return of 0) or not recorded
+        return "undefined (no finite E)"
+    if diff_ci is None and ci is not None:
+        return judge(ci, "the 95% CI spans 0")
+    if diff_ci is None and std is not None:
+        if abs(e) <= std:
+            return "no clear effect (|E| within its std)"
+        return "helps" if e > 0 else "hurts"
+    return verdict({"E": e, "diff_ci95": diff_ci})
+
+
 def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
     lo, hi = _pair(r.get("E_ci95")) or (None, None)
     p = _num((paper.get(env_id) or {}).get(objective_of(r["backbone"])))
     diff_ci = _pair(r.get("diff_ci95"))
-    if e is None and diff_ci is None:  # E undefined (a baseline return of 0) or not recorded
-        judged = "undefined (no finite E)"
-    else:
-        interval = (lo, hi) if lo is not None and hi is not None else None
-        judged = verdict(math.nan if e is None else e, std, interval, diff_ci)
-        judged = judged.replace("|", "\\|")  # a pipe would end the table cell
+    interval = (lo, hi) if lo is not None and hi is not None else None
+    reading = judged(e, std, interval, diff_ci).replace("|", "\\|")  # a pipe ends a table cell
     returns = [_num(r.get(k)) for k in ("baseline_mean", "lhf_mean")]
     diff = _num(r.get("diff"))
     paired = (
@@ -63,7 +81,7 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     return (
         f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
         f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}"
-        f" | {'-' if p is None else f'{p:+.1f}'} | {judged}"
+        f" | {'-' if p is None else f'{p:+.1f}'} | {reading}"
         f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
     )
 

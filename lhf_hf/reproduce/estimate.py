@@ -1,14 +1,7 @@
-"""``lhf reproduce ... --estimate``: what would run, what is cached, and about how long.
-
-Each stage carries a ``Cost``: ``units`` of work (collection transitions; derive/filter transitions
-read; training tokens = steps x batch x tokens per item; evaluation env-steps) of a ``key`` (the
-kind, env and what else its rate depends on, ``kind|env|field|...``, ending in ``|ctxN`` when the
-model's context is not the env's default, since attention per token grows with it).  A stage's
-time is its units x seconds per unit, the rate taken, in order, from the finished stages of the same
-key in this work folder made on this CPU model (``stage.json`` records cost and wall time), from the
-shipped ``rates.json`` (``benchmarks/reference_rates.py``; this CPU model's table first), or from a
-twin env's key (the same ``EnvSpec.cost_class``: the Meta-World ML1 tasks); else it is unknown and
-the total says it is a lower bound.  Linear in the units: short stages' start-up makes them err long.
+"""``lhf reproduce --estimate`` (docs/reproduce.md, ``estimate.py``): what would run, what is cached,
+and about how long.  A stage's ``Cost`` is units of work of a key (kind, env and what its rate
+depends on); its time is the units x a seconds-per-unit rate from, in order: the finished stages of
+the key in this work folder on this CPU model, the shipped ``rates.json``, a twin env's key.
 """
 
 from __future__ import annotations
@@ -146,13 +139,8 @@ def render(est: dict, header: str) -> str:
     n = len(est["stages"])
     lines = [header, ""]
     for i, r in enumerate(est["stages"], 1):
-        basis = r.get("basis", "no cost")
-        if r["cached"]:
-            what = "cached"
-        else:
-            what = (
-                f"to run, {'?' if r['seconds'] is None else '~' + duration(r['seconds'])} ({basis})"
-            )
+        time = "?" if r["seconds"] is None else f"~{duration(r['seconds'])}"
+        what = "cached" if r["cached"] else f"to run, {time} ({r.get('basis', 'no cost')})"
         lines.append(f"[{i}/{n}] {r['kind']:<8} {r['label']}: {what}")
     total = f"~{duration(est['wall_s'])} wall with --jobs {est['jobs']}"
     total += f" ({duration(est['stage_s'])} of stage time)" if est["jobs"] > 1 else ""

@@ -1,9 +1,6 @@
-"""Experiment specs: ``lhf_hf/reproduce/experiments/NAME.yaml`` -> ``Experiment`` (one per paper table).
-
-A spec names the grid (envs x backbones), the paper's E, and per stage (``collect``, ``filter``,
-``train``, ``evaluate``) fields of the config that stage runs; a preset (``quick`` / ``cpu`` /
-``paper``) overrides them.  What neither sets is the config's own default, and every config of
-every stage is built at load, so a typo or a bad value anywhere fails before anything runs.
+"""Experiment specs: ``lhf_hf/reproduce/experiments/NAME.yaml`` -> ``Experiment`` (docs/reproduce.md,
+``experiment.py``): the spec's top level <- one preset; what neither sets is the stage config's
+default, and every stage's config is built at load, so a bad setting fails before anything runs.
 """
 
 from __future__ import annotations
@@ -33,8 +30,8 @@ SET_BY_RUN = {
               "push_to_hub", "hub_private"},
     "evaluate": {"model", "out", "plan", "seed", "split_seed", "overwrite"},
 }  # fmt: skip
-#: Settings of a stage that are not config fields: the derived half dataset, the filter sweep, and
-#: how DICP is evaluated.
+#: Settings of a stage that are not config fields: the derived half dataset, the filter sweep,
+#: per-backbone training settings, and how DICP is evaluated.
 STAGE_EXTRAS = {
     "collect": {"half"},
     "filter": {"sweep"},
@@ -51,6 +48,9 @@ CONFIGS = {
 #: whose plan (tens of stages per run) would take minutes and gigabytes to build, even to estimate.
 MAX_RUNS = 100
 TOP_KEYS = {"title", "paper_table", "budget", "envs", "objectives", "runs", *CONFIGS}
+#: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
+#: evaluations (which ``plan_dicp: both`` runs from the same settings)
+PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -75,9 +75,10 @@ def _merge_train(top: dict, preset: dict) -> dict:
     return out
 
 
-def _check_keys(where: str, settings: dict, cls, stage: str, extras=frozenset()) -> None:
-    """Each key of ``settings`` is a field of ``cls`` that the run does not set (or an extra)."""
-    allowed = {f.name for f in dataclasses.fields(cls)} - SET_BY_RUN[stage]
+def _check_keys(where: str, settings: dict, stage: str, extras=frozenset()) -> None:
+    """Each key of ``settings`` is a field of the stage's config that the run does not set (or an
+    extra)."""
+    allowed = {f.name for f in dataclasses.fields(CONFIGS[stage])} - SET_BY_RUN[stage]
     if unknown := sorted(set(settings) - allowed - set(extras)):
         raise UserError(f"{where}.{unknown[0]} is not a setting of this stage (one of "
                         f"{sorted(allowed)}; the run sets {sorted(SET_BY_RUN[stage])})")  # fmt: skip
@@ -88,13 +89,9 @@ class Experiment:
     """One paper experiment at one budget preset (``load_experiment(name, preset)``).
 
     spec: the name of a shipped spec, else the yaml's path as given (a report's command runs as
-        written).  runs: run r uses seed r and train/test split r.  collect / filter / train /
-        evaluate: fields of the stage's config, less what the run sets (``SET_BY_RUN``), plus
-        ``STAGE_EXTRAS``: ``half`` (train on each history's first half), a filter ``sweep: {key,
-        values}`` (one LHF arm per value), ``by_objective: {backbone: {field: value}}`` and
-        ``plan_dicp`` (true, false or "both": DICP evaluated with and without planning from the
-        same checkpoints).  paper: the paper's E in percent per env and backbone.  narrowed: the
-        objectives are a subset of the spec's, whose stages a later full run finds cached.
+        written).  collect / filter / train / evaluate: fields of the stage's config, less what the
+        run sets (``SET_BY_RUN``), plus ``STAGE_EXTRAS``.  paper: the paper's E in percent per env
+        and backbone.  narrowed: the objectives are a subset of the spec's (``--objectives``).
     """
 
     name: str
@@ -114,30 +111,28 @@ class Experiment:
     spec: str = ""
 
     def __post_init__(self) -> None:
+        name = self.name
         if self.preset not in PRESETS:
             raise UserError(f"unknown preset {self.preset!r}: one of {PRESETS}")
         for env in self.envs:
             get_spec(env)  # unknown env ids fail here, with the registry's list
-        bad = [o for o in self.objectives if o not in OBJECTIVES]
-        if bad or not self.objectives or not self.envs:
-            raise UserError(f"{self.name}: objectives must be a non-empty subset of {OBJECTIVES}")
+        if not self.envs or not self.objectives or not set(self.objectives) <= set(OBJECTIVES):
+            raise UserError(f"{name}: objectives must be a non-empty subset of {OBJECTIVES}")
         if not 1 <= self.runs <= MAX_RUNS:
-            raise UserError(f"{self.name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
+            raise UserError(f"{name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
         if self.evaluate.get("plan_dicp", False) not in (True, False, "both"):
             raise UserError(
-                f"{self.name}: evaluate.plan_dicp must be true, false or 'both', "
+                f"{name}: evaluate.plan_dicp must be true, false or 'both', "
                 f"got {self.evaluate['plan_dicp']!r}"
             )
-        for stage, cls in CONFIGS.items():
-            _check_keys(
-                f"{self.name}: {stage}", getattr(self, stage), cls, stage, STAGE_EXTRAS[stage]
-            )
+        for stage in CONFIGS:
+            _check_keys(f"{name}: {stage}", getattr(self, stage), stage, STAGE_EXTRAS[stage])
         by_objective = self.train.get("by_objective") or {}  # null: none (a preset may cancel)
         if not isinstance(by_objective, dict):
-            raise UserError(f"{self.name}: train.by_objective must map backbones "
+            raise UserError(f"{name}: train.by_objective must map backbones "
                             f"({', '.join(OBJECTIVES)}) to settings, got {by_objective!r}")  # fmt: skip
         for objective, settings in by_objective.items():
-            where = f"{self.name}: train.by_objective.{objective}"
+            where = f"{name}: train.by_objective.{objective}"
             if objective not in OBJECTIVES:
                 raise UserError(
                     f"{where}: {objective!r} is not a backbone ({', '.join(OBJECTIVES)})"
@@ -146,43 +141,49 @@ class Experiment:
                 raise UserError(
                     f"{where} must be a mapping of TrainConfig settings, got {settings!r}"
                 )
-            _check_keys(where, settings, TrainConfig, "train")
+            _check_keys(where, settings, "train")
         sweep = self.filter.get("sweep")
         if sweep is not None and (
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
         ):
-            raise UserError(f"{self.name}: filter.sweep must be {{key: FIELD, values: [...]}}")
+            raise UserError(f"{name}: filter.sweep must be {{key: FIELD, values: [...]}}")
+        # Every config of every stage, built now, each error named by its spec and stage: the
+        # shared train settings alone first (their errors are theirs), then every backbone the
+        # spec trains or sets a budget for.
         shared = {k: v for k, v in self.train.items() if k != "by_objective"}
-        # Every config of every stage, built now: a bad value fails before anything runs, and
-        # the message says which spec and stage.
-        for stage, build in [
-            ("collect", lambda: [self.collect_config(env, 0) for env in self.envs]),
-            ("filter", self._checked_filter_arms),
-            (  # the shared settings alone first: their errors are named as theirs
-                "train",
-                lambda: TrainConfig(dataset="-", objective=self.objectives[0], out="-", **shared),
-            ),
-            *(  # then every backbone the spec trains or sets a budget for
-                (
-                    f"train.by_objective.{o}" if o in by_objective else "train",
-                    lambda o=o: self.train_config(o, 0, dataset="-", selection=None, out="-"),
+        self._build("collect", lambda: [self.collect_config(env, 0) for env in self.envs])
+        self._build("filter", self._checked_filter_arms)
+        self._build(
+            "train",
+            lambda: TrainConfig(dataset="-", objective=self.objectives[0], out="-", **shared),
+        )
+        for o in dict.fromkeys([*self.objectives, *by_objective]):
+            stage = f"train.by_objective.{o}" if o in by_objective else "train"
+            self._build(
+                stage, lambda o=o: self.train_config(o, 0, dataset="-", selection=None, out="-")
+            )
+        for plan in self.dicp_plan_modes():
+            self._build("evaluate", lambda p=plan: self.eval_config(0, model="-", out="-", plan=p))
+
+    def _build(self, stage: str, build) -> None:
+        try:
+            build()
+        except (ValueError, TypeError, KeyError) as exc:
+            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+            raise UserError(f"{self.name}: {stage}: {msg}") from None
+
+    def _checked_filter_arms(self) -> None:
+        """The arms of run 0 differ, and every env's R_max is known (else the first filter would
+        fail, after the collection)."""
+        arms = self.filter_arms(0)
+        if len({cfg for _, cfg in arms}) != len(arms):
+            raise UserError("the sweep's values repeat (the same config twice)")
+        for env in self.envs:
+            if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
+                raise UserError(
+                    f"{env} has no known optimal return: set filter: {{r_max: ...}} (the "
+                    "maximal episode return its scores divide by)"
                 )
-                for o in dict.fromkeys([*self.objectives, *by_objective])
-            ),
-            (
-                "evaluate",
-                lambda: [
-                    self.eval_config(0, model="-", out="-", plan=p) for p in self.dicp_plan_modes()
-                ],
-            ),  # fmt: skip
-        ]:
-            try:
-                built = build()
-            except (ValueError, TypeError, KeyError) as exc:
-                msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-                raise UserError(f"{self.name}: {stage}: {msg}") from None
-            if stage == "filter" and len({cfg for _, cfg in built}) != len(built):
-                raise UserError(f"{self.name}: filter.sweep values repeat (the same config twice)")
 
     # ---- the configs of the stages (one source: the config dataclasses)
     def collect_config(self, env: str, run: int) -> CollectConfig:
@@ -193,18 +194,6 @@ class Experiment:
     @property
     def half(self) -> bool:
         return bool(self.collect.get("half", False))
-
-    def _checked_filter_arms(self) -> list[tuple[str, FilterConfig]]:
-        """The arms of run 0, and every env's R_max known (else the first filter would fail,
-        after the collection)."""
-        arms = self.filter_arms(0)
-        for env in self.envs:
-            if get_spec(env).optimal_returns is None and any(c.r_max is None for _, c in arms):
-                raise UserError(
-                    f"{env} has no known optimal return: set filter: {{r_max: ...}} (the "
-                    "maximal episode return its scores divide by)"
-                )
-        return arms
 
     def filter_arms(self, run: int) -> list[tuple[str, FilterConfig]]:
         """``[(arm name, FilterConfig)]``: ``lhf``, or one arm per value of the sweep."""
@@ -233,7 +222,7 @@ class Experiment:
         dataset: str,
         selection: str | None,
         out: str,
-        resume: bool = False,
+        resume=False,
     ) -> TrainConfig:
         return TrainConfig(
             dataset=dataset,
@@ -260,11 +249,6 @@ class Experiment:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
-
-
-#: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
-#: evaluations (which ``plan_dicp: both`` runs from the same settings)
-PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
 
 
 def train_settings(train: dict, objective: str) -> dict:
@@ -329,15 +313,12 @@ def load_experiment(
     merged = _merge(spec, presets[preset])
     if isinstance(spec.get("train"), dict) and isinstance(presets[preset].get("train"), dict):
         merged["train"] = _merge_train(spec["train"], presets[preset]["train"])
-    unknown = set(merged) - TOP_KEYS
-    if unknown:
+    if unknown := set(merged) - TOP_KEYS:
         raise UserError(f"{path}: unknown keys {sorted(unknown)} (one of {sorted(TOP_KEYS)})")
-    for stage in CONFIGS:
-        if not isinstance(merged.get(stage, {}), dict):
-            raise UserError(f"{path}: {stage} must be a mapping of settings")
-    for key in ("envs", "objectives"):
-        if not isinstance(merged.get(key, []), list):
-            raise UserError(f"{path}: {key} must be a list, e.g. [{merged[key]}]")
+    for key, kind in [*((stage, dict) for stage in CONFIGS), ("envs", list), ("objectives", list)]:
+        if not isinstance(merged.get(key, kind()), kind):
+            what = "a mapping of settings" if kind is dict else f"a list, e.g. [{merged[key]}]"
+            raise UserError(f"{path}: {key} must be {what}")
     if runs is not None:
         merged["runs"] = int(runs)
     shipped = path.resolve() == (EXPERIMENTS_DIR / f"{path.stem}.yaml").resolve()

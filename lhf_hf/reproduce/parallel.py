@@ -1,13 +1,6 @@
-"""``lhf reproduce --jobs J``: up to J stages at once, each in its own process with one thread.
-
-At this model size two 1-thread trainings finish 1.3x sooner than the same two one after the other
-with two threads (BENCHMARKS.md).  A training or evaluation starts, as a child process
-(``python -m lhf_hf.reproduce.worker``), as soon as the stages it reads are done; collections (which
-use every core through their own workers) run alone and first (in plan order a
-later run's collection held back everything after it), derivations and filters in this process.
-Each child writes ``stage.log`` in its stage folder and marks the stage done as the in-process
-runner does.  A failed stage stops new starts; the running ones finish and are kept.  The thread
-count is not part of a stage's identity (it may change float rounding, as another machine would).
+"""``lhf reproduce --jobs J`` (docs/reproduce.md, ``parallel.py``): up to J stages at once, each
+training or evaluation in a child process with one thread (two 1-thread trainings finish 1.3x
+sooner than two 2-thread ones, BENCHMARKS.md), as soon as the stages it reads are done.
 """
 
 from __future__ import annotations
@@ -44,7 +37,8 @@ def run_stages(
     poll_s: float = 0.2,
 ) -> None:
     """Run ``stages`` (in dependency order) with ``runner``: in this process when ``jobs == 1``,
-    else up to ``jobs`` child processes at once (``worker_command(stage)`` starts one)."""
+    else up to ``jobs`` child processes at once (``worker_command(stage)`` starts one).  A failed
+    stage stops new starts; the running ones finish, and the call raises."""
     check_jobs(jobs)
     if jobs == 1:
         for stage in stages:
@@ -65,21 +59,15 @@ def run_stages(
     try:
         while pending or running:
             for stage in list(pending):
-                if failed:
-                    break
-                if stage.done(work):
-                    pending.remove(stage)
-                    runner.run(stage)  # reported as cached, nothing runs
-                    finished.add(stage.hash)
-                    continue
-                if any(i.hash not in finished for i in stage.inputs):
+                done = stage.done(work)
+                if failed or not done and any(i.hash not in finished for i in stage.inputs):
                     continue  # an input is still running (or waiting)
-                if len(running) >= (1 if stage.kind in WHOLE_MACHINE else jobs):
+                if not done and len(running) >= (1 if stage.kind in WHOLE_MACHINE else jobs):
                     break  # first come, first served: a whole-machine stage is not starved
                 pending.remove(stage)
-                if stage.kind in IN_PROCESS:
+                if done or stage.kind in IN_PROCESS:
                     try:
-                        runner.run(stage)
+                        runner.run(stage)  # a done stage is reported as cached
                     except Exception as exc:  # noqa: BLE001 (re-raised once the children end)
                         failed.append(f"{stage.kind} {stage.label}")
                         error = exc
@@ -87,16 +75,18 @@ def run_stages(
                         break
                     finished.add(stage.hash)
                     continue
-                out = stage.path(work)
-                out.mkdir(parents=True, exist_ok=True)
-                log = open(out / LOG_FILE, "ab")  # noqa: SIM115 (closed when the child ends)
-                env = {**os.environ, **ONE_THREAD}
+                log_path = stage.path(work) / LOG_FILE
+                log_path.parent.mkdir(parents=True, exist_ok=True)
+                log = open(log_path, "ab")  # noqa: SIM115 (closed when the child ends)
                 child = subprocess.Popen(
-                    worker_command(stage), stdout=log, stderr=subprocess.STDOUT, env=env
+                    worker_command(stage),
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env={**os.environ, **ONE_THREAD},
                 )
-                runner.done += 1
-                head = f"[{runner.done}/{runner.total or '?'}] {stage.kind:<8} {stage.label}"
-                runner.echo(f"{head} ... (process {child.pid}, 1 thread, log {out / LOG_FILE})")
+                runner.echo(
+                    f"{runner.head(stage)} ... (process {child.pid}, 1 thread, log {log_path})"
+                )
                 running[child] = (stage, time.perf_counter(), log)
             if not running:
                 if pending and not failed:
@@ -107,19 +97,16 @@ def run_stages(
             for child in [c for c in running if c.poll() is not None]:
                 stage, t0, log = running.pop(child)
                 log.close()
-                out = stage.path(work)
                 if child.returncode == 0 and stage.done(work):
                     wall = round(time.perf_counter() - t0, 1)
                     finished.add(stage.hash)
                     runner.echo(f"[done] {stage.kind:<8} {stage.label} in {wall} s")
-                    runner.log.append(
-                        {"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall}
-                    )
+                    runner.record(stage, wall)
                 else:
                     failed.append(f"{stage.kind} {stage.label}")
                     runner.echo(
                         f"[failed] {stage.kind:<8} {stage.label} (exit {child.returncode}); "
-                        f"the end of {out / LOG_FILE}:\n{_tail(out / LOG_FILE)}"
+                        f"the end of {log.name}:\n{_tail(Path(log.name))}"
                     )
     except BaseException:
         # Interrupted: each child is told once, here, with SIGTERM (a stage process ignores

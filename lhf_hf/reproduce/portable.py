@@ -1,13 +1,6 @@
-"""Finished evaluations carried between machines: ``--export-stages DIR`` / ``--import-stages DIR``.
-
-A table can take longer than one machine is held (or its trainings want a GPU), and the stage cache
-(datasets, checkpoints) does not travel; all a report reads of a model is its evaluation (~0.1 MB).
-An export copies every finished ``evaluate`` stage of the plan whole (``stage.log`` left out) and
-lists in ``stages.json`` each one's files with their SHA-256, plus the wall time of the plan's
-other finished stages (for the report's stage time).  An import checks the whole export first
-(``check_export``: every file's checksum, each stage's config hashing to its name) and then copies
-the evaluations of this plan not done here (a copy beside, then a rename; ``stage.json`` gains
-``imported``); ``stages.needed_stages`` then leaves out the trainings only they read.
+"""``--export-stages DIR`` / ``--import-stages DIR`` (docs/reproduce.md, ``portable.py``): a plan's
+finished evaluations (~0.1 MB each; datasets and checkpoints never travel) and the wall times of
+its other finished stages, carried to another machine, checked whole before anything is copied.
 """
 
 from __future__ import annotations
@@ -32,13 +25,18 @@ class ExportError(UserError):
 
 
 def _files(folder: Path) -> dict[str, str]:
-    return {p.relative_to(folder).as_posix(): sha256_file(p) for p in sorted(folder.rglob("*"))
-            if p.is_file()}  # fmt: skip
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    return {p.relative_to(folder).as_posix(): sha256_file(p) for p in files}
+
+
+def _entry(s: Stage, **more) -> dict:
+    return {"kind": s.kind, "label": s.label, "hash": s.hash, **more}
 
 
 def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about: dict) -> dict:
-    """Copy the plan's finished evaluations from ``work`` into ``dest`` (new, or an earlier export,
-    replaced); ``about`` goes into ``stages.json``.  Returns ``{"portable", "records", "not_done"}``."""
+    """Copy the plan's finished evaluations from ``work`` into ``dest`` (new, or an earlier export
+    that holds no evaluation they lack); ``about`` goes into ``stages.json``.  Returns the counts
+    ``{"portable", "records", "not_done"}``."""
     work, dest = Path(work), Path(dest)
     if not work.is_dir():
         raise ExportError(f"the work folder {work} does not exist: nothing to export")
@@ -47,7 +45,7 @@ def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about
         raise ExportError(f"no evaluation of this plan is finished in {work}: nothing to export")
     if dest.resolve().is_relative_to(work.resolve()):
         raise ExportError(f"{dest} is inside the work folder {work}: export somewhere else")
-    if (dest / INDEX_FILE).is_file():  # an earlier export: replaced only by one holding it all
+    if (dest / INDEX_FILE).is_file():
         try:
             old = {e["hash"] for e in read_json(dest / INDEX_FILE)["stages"]}
         except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -63,21 +61,24 @@ def export_stages(stages: list[Stage], work: str | Path, dest: str | Path, about
     ) as out:
         for s in evals:
             path = f"evaluate/{s.hash[:12]}"
-            shutil.copytree(
-                s.path(work), out / path, ignore=shutil.ignore_patterns(LOG_FILE, ".*.lock")
-            )
-            entries.append({"kind": s.kind, "label": s.label, "hash": s.hash, "path": path,
-                            "files": _files(out / path)})  # fmt: skip
-        records = [{"kind": s.kind, "label": s.label, "hash": s.hash, "wall_s": wall}
-                   for s in stages if s.kind != "evaluate" and (wall := stage_wall(s.path(work)))]  # fmt: skip
+            ignore = shutil.ignore_patterns(LOG_FILE, ".*.lock")
+            shutil.copytree(s.path(work), out / path, ignore=ignore)
+            entries.append(_entry(s, path=path, files=_files(out / path)))
+        records = [
+            _entry(s, wall_s=wall)
+            for s in stages
+            if s.kind != "evaluate" and (wall := stage_wall(s.path(work)))
+        ]
         index = {"format": FORMAT, **about, "stages": entries, "records": records}
         write_json_atomic(index, out / INDEX_FILE)
-    return {"portable": len(entries), "records": len(records),
-            "not_done": len(stages) - len(entries) - len(records)}  # fmt: skip
+    not_done = len(stages) - len(entries) - len(records)
+    return {"portable": len(entries), "records": len(records), "not_done": not_done}
 
 
 def check_export(src: str | Path) -> list[str]:
-    """What is wrong with an export (``lhf verify``, and each import first); empty when none."""
+    """What is wrong with an export (``lhf verify``, and each import first); empty when none:
+    every file's checksum, each stage's recorded config hashing to its name, its path of the form
+    ``evaluate/<hash12>``."""
     src = Path(src)
     try:
         index = read_json(src / INDEX_FILE)
@@ -90,7 +91,7 @@ def check_export(src: str | Path) -> list[str]:
     for label, h, path, files in entries:
         folder = src / path
         inside = re.fullmatch("[0-9a-f]{64}", str(h)) and path == f"evaluate/{h[:12]}"
-        if not inside or not folder.is_dir() or _files(folder) != files:  # paths: of the export
+        if not inside or not folder.is_dir() or _files(folder) != files:
             problems.append(f"{src}: stage {label!r} ({path}) changed since it was exported")
             continue
         try:
@@ -104,25 +105,18 @@ def check_export(src: str | Path) -> list[str]:
 
 
 def import_stages(src: str | Path, work: str | Path, plan: list[Stage]) -> dict:
-    """Copy the evaluations of ``plan`` exported to ``src`` that are not done in ``work`` (and the
-    records of its other stages).  Returns the counts and ``about`` (the export's command)."""
+    """Copy the evaluations of ``plan`` exported to ``src`` that are not done in ``work`` (a copy
+    beside, then a rename; ``stage.json`` gains ``imported``), and the records of its other
+    stages.  Returns the counts and ``about`` (what the export says of itself)."""
     src, work = Path(src), Path(work)
-    problems = check_export(src)
-    if problems:
+    if problems := check_export(src):
         raise ExportError(f"{problems[0]}: nothing was imported")
     index = read_json(src / INDEX_FILE)
     about = {k: v for k, v in index.items() if k not in ("stages", "records")}
-    origin = {"from": str(src.resolve()), "created": about.get("created"),
-              "versions": about.get("versions")}  # fmt: skip
+    origin = {"from": str(src.resolve()), **{k: about.get(k) for k in ("created", "versions")}}
     planned = {s.hash: s for s in plan}
-    n = {
-        "imported": 0,
-        "present": 0,
-        "records": 0,
-        "evaluations": len(index["stages"]),
-        "about": about,
-    }
-    n["evaluations_in_plan"] = sum(e["hash"] in planned for e in index["stages"])
+    n = {"imported": 0, "present": 0, "records": 0, "evaluations": len(index["stages"])}
+    n.update(about=about, evaluations_in_plan=sum(e["hash"] in planned for e in index["stages"]))
     for e in index["stages"]:
         s = planned.get(e["hash"])
         if s is None or s.done(work):

@@ -1,4 +1,5 @@
-"""``report.md`` of a reproduction: our E beside the paper's, end-of-curve returns, curves, configs."""
+"""``report.md`` of a reproduction (docs/reproduce.md, ``report.py``): our E beside the paper's, a
+verdict per cell, the returns, what LHF kept, the curves and the provenance."""
 
 from __future__ import annotations
 
@@ -14,45 +15,12 @@ from .experiment import Experiment, shadows_shipped
 
 #: A sweep's figure per env: every value's LHF curves beside the baseline, one panel per backbone.
 SWEEP_FIGURE = "sweep.png"
+#: The mean returns of a selection's summary in the report's columns: the source, the histories
+#: kept and rejected, and the kept ones weighted by how often the resampling drew them.
+MEANS = ("source", "selected_unique", "rejected", "selection")
 
 
-def verdict(
-    e: float | None,
-    e_std: float | None,
-    ci: tuple | list | None = None,
-    diff_ci: tuple | list | None = None,
-) -> str:
-    """Honest reading of one cell. With 2+ paired runs the test is the paired t-test on the runs'
-    return differences (LHF - baseline, same seed and split): an effect counts only when their
-    mean's 95 % confidence interval (``diff_ci``) excludes 0. Tables made before the differences
-    were recorded fall back to the 95 % interval of the mean per-run E (``ci``), and older ones
-    to E against its run-to-run std. The verdict says whether LHF raised the return (the effect's
-    direction); E and its interval say by how much. Disclosed: the test was moved from E's interval
-    to the differences after E's interval spanned 0 on the main job's runs whose three differences
-    were all +2.7 .. +4.4 (docs/reproduce.md)."""
-    if _finite_pair(diff_ci):
-        return _judge(diff_ci, "the paired return difference's 95% CI spans 0")
-    if e is None or not np.isfinite(e):
-        return "undefined (baseline return 0)"
-    if _finite_pair(ci):
-        return _judge(ci, "the 95% CI spans 0")
-    if e_std is None:
-        # one paired run (or baseline and LHF runs that pair only once) has no spread to judge
-        # against: its sign is reported, never a verdict
-        side = "higher" if e > 0 else "lower" if e < 0 else "level"
-        return f"not judged (1 paired run, no error bar): the return is {side} with LHF"
-    if e - e_std > 0:
-        return "helps"
-    if e + e_std < 0:
-        return "hurts"
-    return "no clear effect (|E| within its std)"
-
-
-def _finite_pair(interval) -> bool:
-    return interval is not None and len(interval) == 2 and all(np.isfinite(x) for x in interval)
-
-
-def _judge(interval, spans: str) -> str:
+def judge(interval, spans: str) -> str:
     """An interval of the effect: above 0 helps, below 0 hurts, otherwise no clear effect."""
     if interval[0] > 0:
         return "helps"
@@ -61,29 +29,37 @@ def _judge(interval, spans: str) -> str:
     return f"no clear effect ({spans})"
 
 
+def verdict(row: dict) -> str:
+    """One cell's reading from its ``evaluation.compare`` row: with 2+ paired runs the paired
+    t-test on the runs' return differences (LHF - baseline, same seed and split) decides, not E's
+    interval (a per-run E divides by its run's baseline return: docs/reproduce.md says why)."""
+    ci = row.get("diff_ci95")
+    if ci is not None and all(np.isfinite(x) for x in ci):
+        return judge(ci, "the paired return difference's 95% CI spans 0")
+    e = row.get("E")
+    if e is None or not np.isfinite(e):
+        return "undefined (baseline return 0)"
+    # one paired run (or runs that pair only once) has no spread to judge against: its sign
+    side = "higher" if e > 0 else "lower" if e < 0 else "level"
+    return f"not judged (1 paired run, no error bar): the return is {side} with LHF"
+
+
 def default_out(name: str, preset: str, narrowed_to=None) -> str:
     """``results/NAME-PRESET``, with the backbones appended when the grid is narrowed."""
     tail = "-" + "-".join(narrowed_to) if narrowed_to else ""
     return f"results/{name}-{preset}{tail}"
 
 
-def command_line(
-    name: str,
-    preset: str,
-    runs: int,
-    narrowed_to=None,
-    out: str | None = None,
-    spec: str | None = None,
-) -> str:
-    """The ``lhf reproduce`` call that makes a table (``narrowed_to``: its objectives when only
-    some of the spec's were run; ``out``: its folder, written only when not the default one;
-    ``spec``: the yaml path of a spec that is not shipped, which ``name``, its stem, would not
-    find; one named like a shipped spec has no default folder, so its ``out`` is always written)."""
-    tail = f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
+def command_line(name, preset, runs=None, narrowed_to=None, out=None, spec=None) -> str:
+    """The ``lhf reproduce`` call that makes a table: ``spec`` (the yaml path of a spec that is not
+    shipped, else ``name``), ``--runs`` when given, ``--objectives`` when narrowed, ``--out`` when
+    it is not the default folder (always for a spec named like a shipped one: it has none)."""
+    tail = "" if runs is None else f" --runs {runs}"
+    tail += f" --objectives {' '.join(narrowed_to)}" if narrowed_to else ""
     default = Path(default_out(name, preset, narrowed_to))
     if out is not None and (shadows_shipped(name, spec) or Path(out) != default):
         tail += f" --out {shlex.quote(str(out))}"
-    return f"lhf reproduce {shlex.quote(spec or name)} --preset {preset} --runs {runs}{tail}"
+    return f"lhf reproduce {shlex.quote(spec or name)} --preset {preset}{tail}"
 
 
 def objective_of(backbone: str) -> str:
@@ -95,10 +71,24 @@ def percent(x: float | None) -> str:
     return "-" if x is None or not np.isfinite(x) else f"{100 * x:+.1f}"
 
 
-def _columns(exp: Experiment) -> list[str]:
+def columns(exp: Experiment) -> list[str]:
     """The E table's backbone columns: one per objective, DICP once per planning mode."""
-    return [o.upper() + (" + plan" if plan else "") for o in exp.objectives
-            for plan in (exp.dicp_plan_modes() if o == "dicp" else (False,))]  # fmt: skip
+    modes = {o: exp.dicp_plan_modes() if o == "dicp" else (False,) for o in exp.objectives}
+    return [o.upper() + (" + plan" if plan else "") for o in exp.objectives for plan in modes[o]]
+
+
+def readings(exp: Experiment, cells: list[dict]) -> list[dict]:
+    """Per cell and E-table column: the cell's ``label``, the ``column``, the paper's E in percent
+    (``paper``) and, where the cell has that backbone, its compare ``row`` and ``verdict``."""
+    out = []
+    for cell in cells:
+        rows = {r["backbone"]: r for r in cell["rows"]}
+        for column in columns(exp):
+            paper = (exp.paper.get(cell["env_id"]) or {}).get(objective_of(column))
+            row = rows.get(column)
+            found = {"label": _label(cell), "column": column, "paper": paper, "row": row}
+            out.append({**found, "verdict": None if row is None else verdict(row)})
+    return out
 
 
 def _label(cell: dict) -> str:
@@ -109,16 +99,53 @@ def _num(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
+def _table(header: list[str], rows: list[list]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(str(x) for x in row) + " |" for row in rows]
+
+
+def _entry(r: dict) -> str:
+    """An E-table entry: ours +/- its std, the paper's in parentheses."""
+    paper = "" if r["paper"] is None else f" ({r['paper']:+.1f})"
+    if r["row"] is None:
+        return "-" + paper
+    std = r["row"]["E_std"]
+    return percent(r["row"]["E"]) + ("" if std is None else f" ± {100 * std:.1f}") + paper
+
+
+def _average(exp: Experiment, column: str, found: list[dict]) -> str:
+    ours = [r["row"]["E"] for r in found if r["column"] == column and r["row"]]
+    ours = [e for e in ours if e is not None]  # undefined where the baseline returned 0
+    papers = [(exp.paper.get(e) or {}).get(objective_of(column)) for e in exp.envs]
+    papers = [p for p in papers if p is not None]
+    paper = f" ({np.mean(papers):+.1f})" if papers and len(exp.envs) > 1 else ""
+    return (percent(float(np.mean(ours))) if ours else "-") + paper
+
+
+def _reading(r: dict) -> str:
+    """A verdict line: E, the intervals it rests on, the verdict."""
+    row, facts = r["row"], []
+    if ci := row.get("E_ci95"):
+        facts.append(f"95% CI of the per-run E: {percent(ci[0])} .. {percent(ci[1])}")
+    if ci := row.get("diff_ci95"):
+        facts.append(
+            f"paired return difference {row['diff']:+.2f}, 95% CI {ci[0]:+.2f} .. {ci[1]:+.2f}"
+        )
+    interval = f" ({'; '.join(facts)})" if facts else ""
+    return f"- {r['label']}, {r['column']}: E {percent(row['E'])}%{interval} -> {r['verdict']}"
+
+
 def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) -> str:
     """``report.md``: the E table beside the paper's, a verdict per cell, the returns, what LHF
     kept, the curves and the provenance (``results.json`` holds the same numbers)."""
-    cols = _columns(exp)
+    found = readings(exp, cells)
     narrowed = exp.objectives if exp.narrowed else None
+    command = command_line(exp.name, exp.preset, exp.runs, narrowed, str(out), exp.spec)
     lines = [
         f"# {exp.title}",
         "",
-        f"`{command_line(exp.name, exp.preset, exp.runs, narrowed, str(out), exp.spec)}`: "
-        f"{exp.runs} run(s); run r uses seed r and train/test split r. Paper: {exp.paper_table or '-'}.",
+        f"`{command}`: {exp.runs} run(s); run r uses seed r and train/test split r. "
+        f"Paper: {exp.paper_table or '-'}.",
         "",
         f"**Budget** ({exp.preset}): {exp.budget or '-'}",
         "",
@@ -132,63 +159,28 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     if exp.dicp_plan_modes() == (False, True):
         lines += ["", "DICP is evaluated from the same checkpoints without planning (`DICP`) and "
                   "with it (`DICP + plan`); the paper's DICP values are with planning."]  # fmt: skip
-    lines += ["", "| env | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-    per_col: dict[str, list[float]] = {c: [] for c in cols}
-    verdicts = []
-    for cell in cells:
-        rows = {r["backbone"]: r for r in cell["rows"]}
-        entries = []
-        for c in cols:
-            paper = (exp.paper.get(cell["env_id"]) or {}).get(objective_of(c))
-            paper_s = f" ({paper:+.1f})" if paper is not None else ""
-            r = rows.get(c)
-            if r is None:
-                entries.append("-" + paper_s)
-                continue
-            std = f" ± {100 * r['E_std']:.1f}" if r["E_std"] is not None else ""
-            entries.append(f"{percent(r['E'])}{std}{paper_s}")
-            if r["E"] is not None:  # undefined where the baseline returned 0
-                per_col[c].append(r["E"])
-            verdicts.append((_label(cell), r))
-        lines.append(f"| {_label(cell)} | " + " | ".join(entries) + " |")
+    by_label: dict[str, list[str]] = {}
+    for r in found:
+        by_label.setdefault(r["label"], []).append(_entry(r))
+    e_rows = [[label, *entries] for label, entries in by_label.items()]
     if len(cells) > 1:
-        papers = {
-            c: [
-                p
-                for e in exp.envs
-                if (p := (exp.paper.get(e) or {}).get(objective_of(c))) is not None
-            ]
-            for c in cols
-        }
-        avg = [(percent(float(np.mean(per_col[c]))) if per_col[c] else "-")
-               + (f" ({np.mean(papers[c]):+.1f})" if papers[c] and len(exp.envs) > 1 else "")
-               for c in cols]  # fmt: skip
-        lines.append("| average | " + " | ".join(avg) + " |")
+        e_rows.append(["average", *(_average(exp, c, found) for c in columns(exp))])
+    lines += ["", *_table(["env", *columns(exp)], e_rows)]
     lines += ["", "## Where LHF helps, and where it does not", ""]
-    for label, r in verdicts:
-        ci, diff_ci = r.get("E_ci95"), r.get("diff_ci95")
-        facts = [f"95% CI of the per-run E: {percent(ci[0])} .. {percent(ci[1])}"] if ci else []
-        if diff_ci:
-            facts.append(
-                f"paired return difference {r['diff']:+.2f}, 95% CI {diff_ci[0]:+.2f} .. {diff_ci[1]:+.2f}"
-            )
-        interval = f" ({'; '.join(facts)})" if facts else ""
-        judged = verdict(r["E"], r["E_std"], ci, diff_ci)
-        lines.append(f"- {label}, {r['backbone']}: E {percent(r['E'])}%{interval} -> {judged}")
+    lines += [_reading(r) for r in found if r["row"] is not None]
     lines += [
         "", "## Absolute returns", "",
         "Mean over runs of the whole-curve mean and of the last 10% of the episodes (the paper "
         "publishes no returns in numbers).", "",
-        "| env | backbone | baseline mean | LHF mean | baseline end | LHF end | runs |",
-        "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
+    returns = []
     for cell in cells:
         for r in cell["rows"]:
-            lines.append(
-                f"| {_label(cell)} | {r['backbone']} | {r['baseline_mean']:.2f} ± {r['baseline_std']:.2f} | "
-                f"{r['lhf_mean']:.2f} ± {r['lhf_std']:.2f} | {r['baseline_final']:.2f} | "
-                f"{r['lhf_final']:.2f} | {r['runs_baseline']} |"
-            )
+            means = [f"{r[f'{k}_mean']:.2f} ± {r[f'{k}_std']:.2f}" for k in ("baseline", "lhf")]
+            ends = [f"{r[f'{k}_final']:.2f}" for k in ("baseline", "lhf")]
+            returns.append([_label(cell), r["backbone"], *means, *ends, r["runs_baseline"]])
+    header = ["env", "backbone", "baseline mean", "LHF mean", "baseline end", "LHF end", "runs"]
+    lines += _table(header, returns)
     if selections := summary.get("selections"):
         lines += [
             "", "## What LHF kept", "",
@@ -196,17 +188,16 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
             "pooled over tasks; `resampled` weighs the kept ones by how often the resampling drew "
             "them. Pooled means mix tasks (Simpson's paradox): `within tasks` is the mean over "
             "tasks of kept minus rejected, with the tasks where kept return more / less.", "",
-            "| env | arm | run | kept / rejected | source | kept | rejected | resampled "
-            "| within tasks |",
-            "|---|---|---|---|---|---|---|---|---|",
         ]  # fmt: skip
-        lines += [
-            f"| {s['env_id']} | {s['arm']} | {s['run']} | {s['selected_unique']} / {s['rejected']} "
-            f"| {_num(s['mean_return_source'])} | {_num(s['mean_return_selected_unique'])} "
-            f"| {_num(s['mean_return_rejected'])} | {_num(s['mean_return_selection'])} "
-            f"| {describe(s.get('within_task'))} |"
-            for s in selections
-        ]
+        kept = []
+        for s in selections:
+            means = [_num(s[f"mean_return_{k}"]) for k in MEANS]
+            counts = f"{s['selected_unique']} / {s['rejected']}"
+            kept.append(
+                [s["env_id"], s["arm"], s["run"], counts, *means, describe(s.get("within_task"))]
+            )
+        header = ["env", "arm", "run", "kept / rejected", "source", "kept", "rejected"]
+        lines += _table([*header, "resampled", "within tasks"], kept)
     if other := summary.get("other_data"):
         lines += ["", f"**Warning**: {len(other)} evaluation(s) are of models trained on another "
                   "draw of the collection than the one in this work folder (imported from a CPU of "
@@ -224,36 +215,38 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         rel = Path(cell["env_id"]) / cell["arm"] / "compare.png"
         if (out / rel).exists():
             lines += [f"![{cell['env_id']} {cell['arm']}]({rel.as_posix()})", ""]
-    cached = sum(1 for s in summary["stages"] if s["cached"])
-    ran = sum(s.get("wall_s", 0) for s in summary["stages"] if not s["cached"])
-    left_out = (
-        f"; {summary['left_out']} left out: what reads them is done"
-        if summary.get("left_out")
-        else ""
-    )
+    return "\n".join(lines + _provenance(exp, summary))
+
+
+def _provenance(exp: Experiment, summary: dict) -> list[str]:
+    """What the table cost, which versions made it, what was imported, the exact config."""
+    stages = summary["stages"]
+    cached = sum(1 for s in stages if s["cached"])
+    ran = sum(s.get("wall_s", 0) for s in stages if not s["cached"])
+    left_out = summary.get("left_out")
+    left_out = f"; {left_out} left out: what reads them is done" if left_out else ""
     versions = ", ".join(f"{k} {v}" for k, v in summary["versions"].items())
-    lines += [
+    lines = [
         "## Provenance",
         "",
-        f"{len(summary['stages'])} stages ({cached} from cache{left_out}), {ran:.0f} s of stage "
-        f"time in this call ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at "
-        f"once); all stages, whichever call ran them: {summary.get('stage_s', 0) / 3600:.2f} h; "
-        f"created {summary['created']}. Versions: {versions}.",
+        f"{len(stages)} stages ({cached} from cache{left_out}), {ran:.0f} s of stage time in this "
+        f"call ({summary.get('wall_s', 0):.0f} s wall, {summary.get('jobs', 1)} at once); all "
+        f"stages, whichever call ran them: {summary.get('stage_s', 0) / 3600:.2f} h; created "
+        f"{summary['created']}. Versions: {versions}.",
         "",
     ]
     if imported := summary.get("imported"):
+        origins = sorted({(str(i.get("from")), str(i.get("created"))) for i in imported})
         lines += [
             f"{len(imported)} evaluation(s) were imported (`--import-stages`), made elsewhere:"
         ]
-        lines += [f"- from `{w}`, exported {c}" for w, c in
-                  sorted({(str(i.get("from")), str(i.get("created"))) for i in imported})]  # fmt: skip
-        lines.append("")
-    lines += [
+        lines += [f"- from `{w}`, exported {c}" for w, c in origins] + [""]
+    config = yaml.safe_dump(exp.to_dict(), sort_keys=False).rstrip()
+    return lines + [
         "Exact configuration (`results.json` also lists every stage folder):",
         "",
         "```yaml",
-        yaml.safe_dump(exp.to_dict(), sort_keys=False).rstrip(),
+        config,
         "```",
         "",
     ]
-    return "\n".join(lines)

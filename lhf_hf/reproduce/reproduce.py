@@ -1,9 +1,5 @@
-"""``reproduce(name, preset, runs, out, work)``: one paper experiment end to end.
-
-Per run r (seed r, train/test split r) and env: collect the train tasks' histories (optionally keep
-the first half of each), one LHF selection per filter arm, per backbone a baseline and an LHF model
-per arm, each evaluated on the run's unseen tasks; then per env and arm ``compare`` over the runs
-and ``report.md``.  Stages are cached under ``work`` by config hash; ``out`` gets only the report.
+"""``reproduce(name, preset, ...)``: one paper experiment end to end (docs/reproduce.md,
+``reproduce.py``), its stages cached under ``work`` by config hash; ``out`` gets only the report.
 """
 
 from __future__ import annotations
@@ -38,14 +34,8 @@ from .estimate import collect_cost, estimate, eval_cost, render, train_cost
 from .experiment import Experiment, load_experiment, shadows_shipped, spec_path
 from .parallel import check_jobs, run_stages, worker_command
 from .portable import ExportError, check_export, export_stages, import_stages
-from .report import SWEEP_FIGURE, render_report
-from .report import default_out as report_folder
+from .report import SWEEP_FIGURE, command_line, default_out, render_report
 from .stages import Cost, Stage, StageRunner, done_record, needed_stages, stage_wall
-
-
-def _arms(exp: Experiment) -> list[str]:
-    return [arm for arm, _ in exp.filter_arms(0)]
-
 
 #: TrainConfig fields that say where the data, the model and the logs are, not what is trained: the
 #: stage's hash covers its inputs' hashes instead.
@@ -57,11 +47,8 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
     """Every stage of ``exp`` in run order (their folders under ``work``), and
     ``evals[(env, arm or "baseline", objective)] -> [evaluate stage per run]``; also
     ``evals[("selection", env, arm)] -> [filter stage per run]`` (what each selection kept).
-    ``progress``: the stages' progress bars (not part of any hash).
-
-    A stage's hash covers its whole config (every field, defaults included: a changed default
-    re-runs what it changes) and the hashes of the stages it reads.
-    """
+    A stage's hash covers its whole config, defaults included, and the hashes of the stages it
+    reads; ``progress`` (the stages' bars) is in none."""
     stages: list[Stage] = []
     evals: dict[tuple[str, str, str], list[Stage]] = {}
     for run in range(exp.runs):
@@ -188,11 +175,7 @@ def reproduce(
         name, preset, runs, work, jobs, objectives, import_from, echo, progress
     )
     out = Path(report_out(exp, out))
-    echo(
-        f"[lhf reproduce] {exp.spec or exp.name} ({exp.title}), preset {preset}: {exp.runs} run(s) x "
-        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages; "
-        f"work folder {work}, report in {out}"
-    )
+    echo(f"[lhf reproduce] {_plan_line(exp, stages)}; work folder {work}, report in {out}")
     # the report is regenerated from the cache: an earlier one of ours is replaced (and put back
     # if this run fails); someone else's folder, or the cache itself, is refused
     with output_folder(out, "report", overwrite=True, inputs=[work], own_nested=["comparison"]):
@@ -205,31 +188,41 @@ def reproduce(
 def _prepare(name, preset, runs, work, jobs, objectives, import_from, echo, progress=True):
     """The checked call's experiment, work folder and plan, the exports imported first."""
     check_jobs(jobs)
-    work = check_work(work)
+    if not str(work).strip():
+        raise UserError("the work folder (--work) is empty: name the stage cache's folder")
+    if Path(work).exists() and not Path(work).is_dir():
+        raise UserError(f"--work {work}: a file, not a stage cache folder")
     exp = load_experiment(name, preset, runs, objectives)
-    stages, evals = plan_stages(exp, work, progress)
-    _import(import_from, work, stages, echo, exp)
-    return exp, work, stages, evals
+    stages, evals = plan_stages(exp, Path(work), progress)
+    for folder in import_from or ():  # every export checked before the first copy
+        if problems := check_export(folder):
+            raise ExportError(f"{problems[0]}: nothing was imported")
+    for folder in import_from or ():
+        _import(folder, Path(work), stages, echo, exp)
+    return exp, Path(work), stages, evals
 
 
-def report_out(exp: Experiment, out: str | Path | None) -> str | Path:
+def _plan_line(exp: Experiment, stages: list[Stage]) -> str:
+    return (
+        f"{exp.spec or exp.name} ({exp.title}), preset {exp.preset}: {exp.runs} run(s) x "
+        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), {len(stages)} stages"
+    )
+
+
+def report_out(exp: Experiment, out: str | Path | None = None) -> str | Path:
     """The report folder: ``out`` as given (not empty), else ``results/NAME-PRESET[-backbones]``,
     which a spec file named like a shipped spec has not (it would replace that table's report)."""
     if out is not None:
         if not str(out).strip():
             raise UserError("--out is empty: name the report's folder")
         return out
-    return default_out(exp)
-
-
-def default_out(exp: Experiment) -> str:
-    out = report_folder(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
+    default = default_out(exp.name, exp.preset, exp.objectives if exp.narrowed else None)
     if shadows_shipped(exp.name, exp.spec):
         raise UserError(
             f"{shlex.quote(exp.spec)} is named like the shipped spec {exp.name!r}, whose table's "
-            f"folder is {out}: name this report's folder with --out"
+            f"folder is {default}: name this report's folder with --out"
         )
-    return out
+    return default
 
 
 def snapshot_spec(name, preset, runs, exp: Experiment, work: Path, objectives=None) -> Path:
@@ -266,17 +259,13 @@ def estimate_experiment(
         name, preset, runs, work, jobs, objectives, import_from, echo
     )
     needed = needed_stages(stages, work, _targets(evals))
-    left_out = len(stages) - len(needed)
-    head = (
-        f"[lhf reproduce --estimate] {exp.spec or exp.name}, preset {preset}: {exp.runs} run(s) x "
-        f"{len(exp.envs)} env(s) x {len(exp.objectives)} backbone(s), "
-        f"{len(stages)} stages" + (f" ({left_out} left out: what reads them is done)" if left_out else "")
-        + f"; work folder {work}"
-    )  # fmt: skip
+    head = f"[lhf reproduce --estimate] {_plan_line(exp, stages)}"
+    if left_out := len(stages) - len(needed):
+        head += f" ({left_out} left out: what reads them is done)"
     try:
-        head += f", report in {report_out(exp, out)}"
+        head += f"; work folder {work}, report in {report_out(exp, out)}"
     except UserError as e:
-        head += f"; a run would be refused: {e}"
+        head += f"; work folder {work}; a run would be refused: {e}"
     return render(estimate(needed, work, jobs), head)
 
 
@@ -285,11 +274,8 @@ def export_experiment(name, dest, preset="quick", runs=None, work="runs/reproduc
     """``--export-stages DEST``: this plan's finished evaluations to ``DEST`` (``portable.py``);
     returns the counts and ``command``, the call that imports them and finishes the table."""
     exp, work, stages, _ = _prepare(name, preset, runs, work, 1, objectives, None, None)
-    about = {
-        "experiment": exp.name, "preset": preset, "runs": exp.runs, "objectives": list(exp.objectives),
-        "versions": library_versions(["transformers", "accelerate"]),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }  # fmt: skip
+    about = {"experiment": exp.name, "preset": preset, "runs": exp.runs}
+    about.update(objectives=list(exp.objectives), **_made())
     counts = export_stages(stages, work, dest, about)
     return {**counts, "command": import_command(exp, runs, dest, out)}
 
@@ -297,23 +283,17 @@ def export_experiment(name, dest, preset="quick", runs=None, work="runs/reproduc
 def import_command(exp: Experiment, runs: int | None, dest, out=None) -> str:
     """The shell-quoted call that imports ``dest`` and finishes the table (``--out FOLDER`` where
     the spec has no default report folder)."""
-    parts = ["lhf reproduce", shlex.quote(exp.spec or exp.name), "--preset", exp.preset]
-    parts += [] if runs is None else ["--runs", str(runs)]
-    parts += ["--objectives", *exp.objectives] if exp.narrowed else []
-    if out is not None:
-        parts += ["--out", shlex.quote(str(out))]
-    elif shadows_shipped(exp.name, exp.spec):
-        parts += ["--out", "FOLDER"]
-    return " ".join([*parts, "--import-stages", shlex.quote(str(dest))])
+    if out is None and shadows_shipped(exp.name, exp.spec):
+        out = "FOLDER"
+    narrowed = exp.objectives if exp.narrowed else None
+    line = command_line(exp.name, exp.preset, runs, narrowed, out, exp.spec)
+    return f"{line} --import-stages {shlex.quote(str(dest))}"
 
 
-def check_work(work: str | Path) -> Path:
-    """The stage cache's folder: neither empty (the current folder) nor a file."""
-    if not str(work).strip():
-        raise UserError("the work folder (--work) is empty: name the stage cache's folder")
-    if Path(work).exists() and not Path(work).is_dir():
-        raise UserError(f"--work {work}: a file, not a stage cache folder")
-    return Path(work)
+def _made() -> dict:
+    """When, and with which versions, a table or an export was made."""
+    versions = library_versions(["transformers", "accelerate"])
+    return {"versions": versions, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
 def _targets(evals: dict) -> list[Stage]:
@@ -321,25 +301,21 @@ def _targets(evals: dict) -> list[Stage]:
     return [s for group in evals.values() for s in group]
 
 
-def _import(folders, work: Path, plan: list[Stage], echo, exp: Experiment) -> None:
-    for folder in folders or ():  # every export checked before the first copy
-        if problems := check_export(folder):
-            raise ExportError(f"{problems[0]}: nothing was imported")
-    for folder in folders or ():
-        n = import_stages(folder, work, plan)
+def _import(folder, work: Path, plan: list[Stage], echo, exp: Experiment) -> None:
+    n = import_stages(folder, work, plan)
+    echo(
+        f"[lhf reproduce] imported from {folder}: {n['imported']} evaluation(s), "
+        f"{n['records']} record(s), {n['present']} already here; {n['evaluations_in_plan']} "
+        f"of its {n['evaluations']} evaluation(s) are in this plan"
+    )
+    if n["evaluations"] and not n["evaluations_in_plan"]:
+        a = n["about"]
         echo(
-            f"[lhf reproduce] imported from {folder}: {n['imported']} evaluation(s), "
-            f"{n['records']} record(s), {n['present']} already here; {n['evaluations_in_plan']} "
-            f"of its {n['evaluations']} evaluation(s) are in this plan"
+            f"[lhf reproduce] warning: none of {folder}'s evaluations is in this plan (it was "
+            f"exported from {a.get('experiment')} --preset {a.get('preset')} --runs "
+            f"{a.get('runs')}, this is {exp.name} --preset {exp.preset} --runs {exp.runs}; "
+            "if they are the same: another code version, or a changed spec)"
         )
-        if n["evaluations"] and not n["evaluations_in_plan"]:
-            a = n["about"]
-            echo(
-                f"[lhf reproduce] warning: none of {folder}'s evaluations is in this plan (it was "
-                f"exported from {a.get('experiment')} --preset {a.get('preset')} --runs "
-                f"{a.get('runs')}, this is {exp.name} --preset {exp.preset} --runs {exp.runs}; "
-                "if they are the same: another code version, or a changed spec)"
-            )
 
 
 def _run(exp, stages, evals, work: Path, out: Path, echo, jobs: int, command) -> Path:
@@ -350,24 +326,29 @@ def _run(exp, stages, evals, work: Path, out: Path, echo, jobs: int, command) ->
         echo(f"[lhf reproduce] {len(stages) - len(todo)} stage(s) left out: not done, but what "
              "reads them is (imported evaluations)")  # fmt: skip
     run_stages(todo, runner, jobs, command)
+    arms = [arm for arm, _ in exp.filter_arms(0)]
+
+    def runs_of(env: str, arm: str) -> list[str]:  # every backbone's evaluations, run by run
+        return [str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, arm, o)]]
+
     cells = []
     for env in exp.envs:
-        for arm in _arms(exp):
-            base, filt = ([str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, a, o)]]
-                          for a in ("baseline", arm))  # fmt: skip
-            cells.append(
-                {
-                    "env_id": env,
-                    "arm": arm,
-                    **compare(base, filt, out=out / env / arm, overwrite=True),
-                }
+        for arm in arms:
+            found = compare(
+                runs_of(env, "baseline"), runs_of(env, arm), out=out / env / arm, overwrite=True
             )
-        if len(_arms(exp)) > 1:  # a sweep: every value on one panel per backbone, as the paper
-            _plot_sweep(exp, env, evals, work, out / env / SWEEP_FIGURE)
+            cells.append({"env_id": env, "arm": arm, **found})
+    for env in exp.envs if len(arms) > 1 else ():  # a sweep: every value on one panel per backbone
+        panels: dict[str, dict] = {}
+        for arm in ["baseline", *arms]:
+            for backbone, curves in mean_curves(runs_of(env, arm)).items():
+                panels.setdefault(backbone, {})[arm] = curves  # (runs, episodes)
+        title = f"{env}: baseline (dashed) vs LHF per {exp.filter['sweep']['key']} (solid)"
+        plot_sweep(panels, out / env / SWEEP_FIGURE, title)
     selections = [
         {"env_id": env, "arm": arm, "run": run, **_selection_summary(stage.path(work))}
         for env in exp.envs
-        for arm in _arms(exp)
+        for arm in arms
         for run, stage in enumerate(evals[("selection", env, arm)])
     ]
     wall = round(time.perf_counter() - t0, 1)
@@ -385,27 +366,15 @@ def _run(exp, stages, evals, work: Path, out: Path, echo, jobs: int, command) ->
             {"stage": s.label, **origin}
             for s in stages
             if (origin := (done_record(s.path(work)) or {}).get("imported"))
-        ],  # fmt: skip
+        ],
         "jobs": jobs,
-        "versions": library_versions(["transformers", "accelerate"]),
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        **_made(),
     }
     write_json_atomic(summary, out / "results.json")
     report = out / "report.md"
     write_text_atomic(render_report(exp, cells, summary, out), report)
     echo(f"[lhf reproduce] report: {report}  ({wall} s)")
     return report
-
-
-def _plot_sweep(exp: Experiment, env: str, evals: dict, work: Path, path: Path) -> None:
-    """One panel per backbone: the baseline and every swept value's LHF curves (fig_sensitivity)."""
-    panels: dict[str, dict] = {}
-    for arm in ["baseline", *_arms(exp)]:
-        paths = [str(s.path(work) / "eval") for o in exp.objectives for s in evals[(env, arm, o)]]
-        for backbone, runs in mean_curves(paths).items():
-            panels.setdefault(backbone, {})[arm] = runs  # (runs, episodes)
-    sweep = exp.filter["sweep"]["key"]
-    plot_sweep(panels, path, f"{env}: baseline (dashed) vs LHF per {sweep} (solid)")
 
 
 def _selection_summary(folder: Path) -> dict:
@@ -430,12 +399,9 @@ def _other_data(evals: dict, work: Path) -> list[dict]:
             here = read_json(data.path(work) / "data" / C.LHF_INFO_PATH)
         except (OSError, ValueError, KeyError, TypeError):
             continue  # nothing recorded to compare
-        if (
-            isinstance(used, str)
-            and isinstance(here.get("fingerprint"), str)
-            and used != here["fingerprint"]
-        ):
+        mine = here.get("fingerprint")
+        if isinstance(used, str) and isinstance(mine, str) and used != mine:
             machine = here.get("machine") or {}
-            found.append({"stage": ev.label, "trained_on": used, "here": here["fingerprint"],
+            found.append({"stage": ev.label, "trained_on": used, "here": mine,
                           "here_machine": {k: machine.get(k) for k in ("cpu", "isa", "threads")}})  # fmt: skip
     return found

@@ -1,10 +1,6 @@
-"""Stages cached by their config's hash: a rerun skips what is done and resumes what is not.
-
-A stage's folder is ``WORK/<kind>/<hash12>`` where the hash covers the stage's own config AND the
-hashes of the stages it reads (its ``inputs``), so changing a collection setting re-runs everything
-downstream of it and nothing else.  ``stage.json`` is written last (atomically): its presence is
-the "done" mark.  A half-finished stage is resumed by the stage function itself (collection and
-training resume from their own markers/checkpoints).
+"""Stages cached by their config's hash (docs/reproduce.md, ``stages.py``): a stage's folder is
+``WORK/<kind>/<hash12>``, the hash covering its config and the hashes of the stages it reads, and
+``stage.json``, written last, marks it done; an unfinished stage is resumed by its own function.
 """
 
 from __future__ import annotations
@@ -80,7 +76,7 @@ def done_record(folder: Path) -> dict | None:
 
 
 class StageRunner:
-    """Runs stages in order with a one-line-per-stage progress display."""
+    """Runs stages one by one, a numbered line each; ``log`` lists what ran and what was cached."""
 
     def __init__(self, work: str | Path, total: int | None = None, echo: Callable = print):
         self.work = Path(work)
@@ -89,29 +85,38 @@ class StageRunner:
         self.echo = echo
         self.log: list[dict] = []
 
+    def head(self, stage: Stage) -> str:
+        """The next stage's numbered line."""
+        self.done += 1
+        return f"[{self.done}/{self.total or '?'}] {stage.kind:<8} {stage.label}"
+
+    def record(self, stage: Stage, wall: float | None = None) -> None:
+        """``log`` the stage: cached (no ``wall``), or run in ``wall`` seconds."""
+        entry = {"stage": stage.label, "path": str(stage.path(self.work)), "cached": wall is None}
+        self.log.append(entry if wall is None else {**entry, "wall_s": wall})
+
     def run(self, stage: Stage) -> Path:
         out = stage.path(self.work)
-        self.done += 1
-        head = f"[{self.done}/{self.total or '?'}] {stage.kind:<8} {stage.label}"
+        head = self.head(stage)
         if stage.done(self.work):
             self.echo(f"{head}: cached ({out})")
-            self.log.append({"stage": stage.label, "path": str(out), "cached": True})
+            self.record(stage)
             return out
         self.echo(f"{head} ...")
-        # Something of an earlier, interrupted call is here: the stage resumes, so its wall time
-        # covers only part of its work and is no rate for later estimates.
+        # an earlier, interrupted call left something: the stage resumes, so its wall time covers
+        # only part of its work and is no rate for later estimates
         resumed = out.is_dir() and any(p.name not in (LOG_FILE, RECORD_FILE) for p in out.iterdir())
         t0 = time.perf_counter()
         out.mkdir(parents=True, exist_ok=True)
         stage.fn(out)
         wall = round(time.perf_counter() - t0, 1)
         done = {"kind": stage.kind, "label": stage.label, "config": stage.config, "wall_s": wall}
-        done["resumed"] = resumed  # its wall time covers part of its work: no rate
+        done["resumed"] = resumed
         if stage.cost is not None:  # a measured rate for later estimates (``estimate.py``)
             done.update(cost=dataclasses.asdict(stage.cost), cpu=cpu_model())
         write_json_atomic(done, out / DONE_FILE)
         self.echo(f"{head}: done in {wall} s")
-        self.log.append({"stage": stage.label, "path": str(out), "cached": False, "wall_s": wall})
+        self.record(stage, wall)
         return out
 
 
@@ -121,14 +126,11 @@ def needed_stages(
     targets: list[Stage],
     done: Callable[[Stage], bool] | None = None,
 ) -> list[Stage]:
-    """``stages`` (in plan order) less those this call need not run: a stage not done is needed
-    when it is a target (what the report reads) or some needed stage reads it.  A training whose
-    evaluations are all done (imported from another machine's cache, ``portable.py``) is left out,
-    and so is the collection only it read.  Done stages stay (they are reported as cached).
-    ``done``: what counts as done (default: finished under ``work``; ``coverage.py`` counts the
-    stages of a committed export)."""
-    work = Path(work)
-    is_done = done or (lambda s: s.done(work))
+    """``stages`` (in plan order) less those not done that no needed stage reads: a stage is
+    needed when it is a target (what the report reads) or a needed stage not done reads it, so a
+    training whose evaluations were imported is left out.  ``done``: what counts as done (default:
+    finished under ``work``)."""
+    is_done = done or (lambda s: s.done(Path(work)))
     needed: set[str] = set()
     todo = list(targets)
     while todo:

@@ -453,4 +453,6 @@ def test_compare_with_a_zero_baseline_writes_valid_json(tmp_path):
     assert "| AD | 0.00 ± 0.00 | 1.50 ± 0.71 | undefined (baseline 0) |" in r["table"]
     from lhf_hf.reproduce.report import verdict
 
-    assert verdict(None, None, None, None) == "undefined (baseline return 0)"
+    # the paired differences (1, 2) judge the cell although E is undefined; without them, nothing
+    assert verdict(row) == "no clear effect (the paired return difference's 95% CI spans 0)"
+    assert verdict({**row, "diff_ci95": None}) == "undefined (baseline return 0)"

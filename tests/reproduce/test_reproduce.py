@@ -246,30 +246,36 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     assert len(stages_b) == len(stages_p) + 4  # + one model-free evaluation per DICP model
     assert all(len(evals_b[("darkroom", a, "ad")]) == 2 for a in ("baseline", "lhf"))
     # the report has one column per DICP mode, the paper's (planned) value beside both
-    from lhf_hf.reproduce.report import render_report
+    from lhf_hf.reproduce.report import columns, readings, render_report
 
-    def row(backbone, e):
-        return {"backbone": backbone, "E": e, "E_std": 0.01, "baseline_mean": 5.0,
-                "baseline_std": 0.1, "lhf_mean": 5.0 * (1 + e), "lhf_std": 0.1,
-                "baseline_final": 6.0, "lhf_final": 7.0, "runs_baseline": 2, "runs_lhf": 2}  # fmt: skip
+    def row(backbone, e, diff_ci):
+        return {"backbone": backbone, "E": e, "E_std": 0.01, "diff": 1.0, "diff_ci95": diff_ci,
+                "baseline_mean": 5.0, "baseline_std": 0.1, "lhf_mean": 5.0 * (1 + e),
+                "lhf_std": 0.1, "baseline_final": 6.0, "lhf_final": 7.0, "runs_baseline": 2,
+                "runs_lhf": 2}  # fmt: skip
 
-    cells = [{"env_id": "darkroom", "arm": "lhf",
-              "rows": [{**row("AD", 0.2), "E_ci95": [0.083, 0.317]}, row("DICP", 0.1),
-                       row("DICP + plan", -0.5)]}]  # fmt: skip
-    summary = {"stages": [], "created": "now", "versions": {}}
-    text = render_report(both, cells, summary, tmp_path)
-    lines = text.splitlines()
-    assert "| env | AD | DICP | DICP + plan |" in lines  # one column per DICP mode
-    row = next(line for line in lines if line.startswith("| darkroom |"))  # the E table's
-    entries = [c.split() for c in row.strip("| ").split(" | ")[1:]]
-    assert [e[0] for e in entries] == ["+20.0", "+10.0", "-50.0"]  # E in percent
-    assert [e[-1] for e in entries] == ["(+25.1)", "(+15.2)", "(+15.2)"]  # the paper's: planned
-    verdicts = [
-        ln.rsplit("-> ", 1)[1] for ln in lines if ln.startswith("- darkroom") and "->" in ln
+    rows = [row("AD", 0.2, [0.4, 1.6]), row("DICP", 0.1, [-0.3, 2.0]),
+            row("DICP + plan", -0.5, [-2.0, -0.5])]  # fmt: skip
+    cells = [{"env_id": "darkroom", "arm": "lhf", "rows": rows}]
+    assert columns(both) == ["AD", "DICP", "DICP + plan"] and columns(plan) == ["AD", "DICP + plan"]
+    found = readings(both, cells)
+    assert [(r["label"], r["column"], r["row"]["E"]) for r in found] == [
+        ("darkroom", "AD", 0.2), ("darkroom", "DICP", 0.1), ("darkroom", "DICP + plan", -0.5)
+    ]  # fmt: skip
+    assert [r["paper"] for r in found] == [25.1, 15.2, 15.2]  # the paper's DICP: planned
+    assert [r["verdict"] for r in found] == ["helps", "no clear effect (the paired return "
+                                             "difference's 95% CI spans 0)", "hurts"]  # fmt: skip
+    # a backbone the cell lacks is a column without a reading
+    (missing,) = [r for r in readings(both, [{**cells[0], "rows": rows[:1]}]) if r["row"] is None][
+        1:
     ]
-    assert verdicts == ["helps", "helps", "hurts"]
-    assert "## Where LHF helps, and where it does not" in lines
-    assert "| AD | DICP + plan |" in render_report(plan, cells, summary, tmp_path)
+    assert (missing["column"], missing["verdict"]) == ("DICP + plan", None)
+    # rendered: the E table's header and row, and one verdict line per reading
+    lines = render_report(both, cells, {"stages": [], "created": "now", "versions": {}}, tmp_path)
+    lines = lines.splitlines()
+    assert "| env | AD | DICP | DICP + plan |" in lines
+    assert sum(line.startswith("| darkroom | +20.0 ± 1.0 (+25.1) |") for line in lines) == 1
+    assert sum(line.startswith("- darkroom, ") for line in lines) == 3
 
 
 def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
@@ -303,14 +309,14 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path, capsys,
     its report's command line always writes it."""
     from lhf_hf.configs.commands import ReproduceOptions
     from lhf_hf.reproduce.report import render_report
-    from lhf_hf.reproduce.reproduce import default_out, estimate_experiment, import_command
+    from lhf_hf.reproduce.reproduce import estimate_experiment, import_command, report_out
 
     path = _spec(tmp_path, TINY, "darkroom-main")
     monkeypatch.chdir(tmp_path)  # the default folder would be results/... under the current one
     mine = load_experiment(path, "quick")
     assert (mine.name, mine.spec) == ("darkroom-main", path)
     with pytest.raises(ValueError, match="named like the shipped spec 'darkroom-main'.*--out"):
-        default_out(mine)
+        report_out(mine)
     out = tmp_path / "r"
     assert main(["reproduce", path, "--work", str(tmp_path / "w"), "--estimate"]) == 0
     assert main(["reproduce", path, "--work", str(tmp_path / "w")]) == 1  # refused, nothing run
@@ -320,7 +326,7 @@ def test_a_spec_named_like_a_shipped_one_has_no_default_folder(tmp_path, capsys,
     for folder in (out, Path("results/darkroom-main-quick")):  # even the shipped one's name
         text = render_report(mine, [], summary, folder)
         assert f"`lhf reproduce {path} --preset quick --runs 2 --out {folder}`" in text
-    assert default_out(load_experiment("darkroom-main", "quick")) == "results/darkroom-main-quick"
+    assert report_out(load_experiment("darkroom-main", "quick")) == "results/darkroom-main-quick"
     # the estimate names the folder a run would write, or why a run would be refused one
     text = estimate_experiment(path, "quick", work=tmp_path / "w")
     assert "a run would be refused: " in text and "name this report's folder with --out" in text
@@ -364,47 +370,37 @@ def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
     assert gated.eval_config(0, model="m", out="o", plan=False).plan_gate == "always"
 
 
-def test_sweep_arms_and_verdicts():
+def test_sweep_arms():
     exp = load_experiment("darkroom-lambda", "quick")
     arms = exp.filter_arms(2)
     assert [a for a, _ in arms] == ["lam=0", "lam=0.5", "lam=1", "lam=2", "lam=1000"]
     assert [f.lam for _, f in arms] == [0, 0.5, 1, 2, 1000]
     assert all(f.strategy == "linear" and f.seed == 2 for _, f in arms)
     assert load_experiment("darkroom-main", "quick").filter_arms(0) == [("lhf", FilterConfig())]
-    assert verdict(0.10, 0.05) == "helps"
-    assert verdict(-0.10, 0.05) == "hurts"
-    assert verdict(0.03, 0.05).startswith("no clear effect")
-    # one run: its sign, never a verdict
-    assert (
-        verdict(0.03, None)
-        == "not judged (1 paired run, no error bar): the return is higher with LHF"
-    )
-    assert verdict(-0.03, None).endswith("lower with LHF")
-    assert verdict(float("nan"), None).startswith("undefined")
-    # with a confidence interval, it decides: an effect beyond 1 std whose interval spans 0 is none
-    assert verdict(-0.194, 0.098, (-0.482, 0.113)) == "no clear effect (the 95% CI spans 0)"
-    assert (
-        verdict(0.10, 0.50, (0.01, 0.19)) == "helps"
-        and verdict(-0.1, 0.5, (-0.2, -0.01)) == "hurts"
-    )
-    # with the paired return differences' interval, that decides: the demo's lightweight AD on
-    # noisy data (baseline 0.600 / 1.900 / 1.979, LHF 4.954 / 5.458 / 4.696): per-run E 7.26 /
-    # 1.87 / 1.37, whose interval spans 0, while every difference is +2.7 .. +4.4
+
+
+def test_the_verdict_is_the_paired_test_of_the_return_differences():
+    # the demo's lightweight AD on noisy data (baseline 0.600 / 1.900 / 1.979, LHF 4.954 / 5.458 /
+    # 4.696): per-run E 7.26 / 1.87 / 1.37, whose interval spans 0, while every difference is
+    # +2.7 .. +4.4: the differences' interval decides
     diffs = np.array([4.954 - 0.600, 5.458 - 1.900, 4.696 - 1.979])
     half = 4.3027 * diffs.std(ddof=1) / np.sqrt(3)  # t(0.975, 2)
-    d_ci = (diffs.mean() - half, diffs.mean() + half)
+    d_ci = [diffs.mean() - half, diffs.mean() + half]
     assert d_ci[0] > 0
-    assert verdict(2.37, 2.66, (-4.6, 11.6), d_ci) == "helps"
-    assert verdict(-0.05, 0.04, (-0.16, 0.07), (-1.1, -0.2)) == "hurts"
+    assert verdict({"E": 2.37, "E_std": 2.66, "E_ci95": [-4.6, 11.6], "diff_ci95": d_ci}) == "helps"
+    assert verdict({"E": -0.05, "E_ci95": [-0.16, 0.07], "diff_ci95": [-1.1, -0.2]}) == "hurts"
     assert (
-        verdict(0.5, 0.1, (0.2, 0.8), (-0.3, 2.0))
+        verdict({"E": 0.5, "E_ci95": [0.2, 0.8], "diff_ci95": [-0.3, 2.0]})
         == "no clear effect (the paired return difference's 95% CI spans 0)"
     )
     # a baseline returning 0 leaves E undefined, but not the difference, which then decides
-    assert verdict(float("nan"), None, None, (4.07, 6.0)) == "helps"
-    assert verdict(float("nan"), None, None, None).startswith("undefined")
-    # an unrecorded or non-finite difference interval falls back to E's
-    assert verdict(0.10, 0.50, (0.01, 0.19), (float("nan"), 1.0)) == "helps"
+    assert verdict({"E": None, "diff_ci95": [4.07, 6.0]}) == "helps"
+    assert verdict({"E": None, "diff_ci95": None}).startswith("undefined")
+    # one run: its sign, never a verdict (nor from a non-finite interval)
+    assert verdict({"E": 0.03}) == (
+        "not judged (1 paired run, no error bar): the return is higher with LHF"
+    )
+    assert verdict({"E": -0.03, "diff_ci95": [float("nan"), 1.0]}).endswith("lower with LHF")
 
 
 @pytest.mark.slow
@@ -518,7 +514,7 @@ def test_half_histories_and_sweep_arms(tmp_path):
 def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys):
     """``objectives``: only those backbones' stages, with the same hashes as in the full plan (a
     later full run finds them cached), the report named after them; an unknown one fails early."""
-    from lhf_hf.reproduce.reproduce import default_out, plan_stages
+    from lhf_hf.reproduce.reproduce import plan_stages, report_out
 
     full = load_experiment("darkroom-main", "cpu", 3)
     dicp = load_experiment("darkroom-main", "cpu", 3, objectives=["dicp"])
@@ -532,8 +528,8 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     trained = [s.config["objective"] for s in some if s.kind == "train"]
     assert trained == ["dicp"] * 6  # 3 runs x (baseline, LHF)
     assert sum(s.kind == "evaluate" for s in some) == 12  # each with and without planning
-    assert default_out(dicp) == "results/darkroom-main-cpu-dicp"
-    assert default_out(full) == "results/darkroom-main-cpu"
+    assert report_out(dicp) == "results/darkroom-main-cpu-dicp"
+    assert report_out(full) == "results/darkroom-main-cpu"
     with pytest.raises(ValueError, match="darkroom-main has no backbone 'bc': choose among"):
         load_experiment("darkroom-main", "cpu", objectives=["bc"])
     # the quick preset narrows the spec to AD: the error names what this preset has

@@ -240,3 +240,21 @@ def test_a_symlinked_results_folder_keeps_its_name(tmp_path):
     text = render_index(tmp_path / "proj" / "results")[0]
     assert "`lhf reproduce c --preset cpu --runs 3`;" in text
     assert "The command lines run from" not in text
+
+
+def test_older_tables_are_judged_on_what_they_recorded():
+    """Tables made before the paired differences were recorded are judged on E's 95% interval,
+    older ones on |E| against its std; a recorded difference interval decides as in the report."""
+    judged = load_script("results_index").judged
+    assert judged(0.10, 0.05, None, None) == "helps"
+    assert judged(-0.10, 0.05, None, None) == "hurts"
+    assert judged(0.03, 0.05, None, None) == "no clear effect (|E| within its std)"
+    assert judged(0.03, None, None, None).endswith("higher with LHF")  # one run: its sign
+    assert judged(None, None, None, None) == "undefined (no finite E)"
+    # an interval decides over the std: an effect beyond 1 std whose interval spans 0 is none
+    assert judged(-0.194, 0.098, (-0.482, 0.113), None) == "no clear effect (the 95% CI spans 0)"
+    assert judged(0.10, 0.50, (0.01, 0.19), None) == "helps"
+    assert judged(-0.1, 0.5, (-0.2, -0.01), None) == "hurts"
+    # the paired differences' interval decides over both, E undefined or not
+    assert judged(2.37, 2.66, (-4.6, 11.6), (1.47, 5.61)) == "helps"
+    assert judged(None, None, None, (4.07, 6.0)) == "helps"
