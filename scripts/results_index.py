@@ -66,7 +66,7 @@ def judged(e: float | None, std: float | None, ci, diff_ci) -> str:
 
 def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
-    lo, hi = _pair(r.get("E_ci95")) or (None, None)
+    lo, hi = _pair(r.get("E_interval95") or r.get("E_ci95")) or (None, None)
     p = _num((paper.get(env_id) or {}).get(objective_of(r["backbone"])))
     diff_ci = _pair(r.get("diff_ci95"))
     interval = (lo, hi) if lo is not None and hi is not None else None
@@ -199,8 +199,9 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "Every table `lhf reproduce` wrote under this folder (`scripts/results_index.py` renders this "
         "page from their `results.json`). E = (whole-curve mean return with LHF - without) / without, "
         "the returns averaged over the runs; ± is the std of the per-run E over paired runs (same "
-        "seed and split), the interval the 95% confidence interval of the mean per-run E (Student "
-        "t; `-` for tables made before it was recorded). The verdict is the paired t-test on the "
+        "seed and split), the interval the 95% interval of E (the delta method on the paired run "
+        "means; tables that recorded the mean per-run E's Student-t interval instead show that; `-` "
+        "for tables that recorded neither). The verdict is the paired t-test on the "
         "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "

@@ -280,7 +280,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 if e is None
                 else _near_zero(env_id, float(mb.mean())),
                 "E_std": e_std,
-                "E_ci95": e_ci,
+                "E_interval95": e_ci,
                 "diff": float((mf - mb).mean()) if paired else None,
                 "diff_ci95": diff_ci,
                 "diff_mde80": mde,

@@ -125,7 +125,9 @@ def _average(exp: Experiment, column: str, found: list[dict]) -> str:
 def _reading(r: dict) -> str:
     """A verdict line: E, the intervals it rests on, the verdict."""
     row, facts = r["row"], []
-    if ci := row.get("E_ci95"):
+    if ci := row.get("E_interval95"):
+        facts.append(f"95% interval of E: {percent(ci[0])} .. {percent(ci[1])}")
+    elif ci := row.get("E_ci95"):  # a comparison that recorded the per-run E's interval instead
         facts.append(f"95% CI of the per-run E: {percent(ci[0])} .. {percent(ci[1])}")
     if ci := row.get("diff_ci95"):
         facts.append(
@@ -152,7 +154,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "## Relative enhancement E (%) of LHF over each backbone",
         "",
         "E = (mean return over the whole test curve with LHF - without) / without, averaged over "
-        "runs; ± is the std of the per-run E over paired runs (same seed and split); the paper's "
+        "runs; ± is the sample std of the per-run E over paired runs (same seed and split); the paper's "
         "in parentheses. The verdicts judge on the paired t-test of the runs' return differences "
         "(LHF - baseline): an effect counts when their 95% interval excludes 0 (docs/reproduce.md).",
     ]

@@ -270,7 +270,7 @@ def test_compare_relative_enhancement_by_hand(tmp_path):
     # 95% interval of E itself (delta method): d = 1, 2 (mean 1.5, s_d^2 = 0.5), b = 2, 2 (no
     # spread): Var(E) = (0.5 / 2^2) / 2 = 0.0625, E 0.75 +- t(0.975, 1) x 0.25, t = 12.706
     half = 12.7062 * 0.25
-    assert np.allclose(row["E_ci95"], [0.75 - half, 0.75 + half], atol=1e-4)
+    assert np.allclose(row["E_interval95"], [0.75 - half, 0.75 + half], atol=1e-4)
     assert row["E_note"] is None  # 2 is not near zero on Darkroom (mean optimal return 16.5)
     # the paired return differences 3 - 2, 4 - 2: mean 1.5, s = 0.7071, the verdict's interval
     assert row["baseline_run_means"] == [2, 2] and row["lhf_run_means"] == [3, 4]
@@ -290,7 +290,7 @@ def test_the_interval_of_e_is_of_the_e_printed_and_a_near_zero_baseline_is_flagg
     lhf = [fake_eval(tmp_path / f"l{i}", "ad", [v, v]) for i, v in enumerate([12, 13, 10])]
     row = compare(base, lhf)["rows"][0]
     assert np.isclose(row["E"], 1 / 6)
-    assert np.allclose(row["E_ci95"], [1 / 6 - 0.21908, 1 / 6 + 0.21908], atol=1e-4)
+    assert np.allclose(row["E_interval95"], [1 / 6 - 0.21908, 1 / 6 + 0.21908], atol=1e-4)
     # minimum detectable difference at 80 % power: (t(0.975, 2) 4.3027 + t(0.8, 2) 1.0607) x
     # s_d 0.57735 / sqrt(3) = 1.7879; over the baseline's 10: E 0.179
     assert np.isclose(row["diff_mde80"], 1.7879, atol=1e-3)
