@@ -81,8 +81,10 @@ def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object
     the upstream hashes and the run's seed and paths, so a default written out is no difference
     and a change of AD's steps or of DICP's planner does not date another backbone's cell."""
     evaluate = {
-        "plan" if plan else "policy": exp.eval_config(0, model="-", out="-", plan=plan).to_dict()
-        for plan in (exp.dicp_plan_modes() if objective == "dicp" else (False,))
+        {"none": "policy"}.get(plan, plan): exp.eval_config(
+            0, model="-", out="-", plan=plan
+        ).to_dict()
+        for plan in (exp.dicp_plan_modes() if objective == "dicp" else ("none",))
     }
     train = exp.train_config(objective, 0, dataset="-", selection=None, out="-").to_dict()
     collect = exp.collect_config(env, 0).to_dict()
@@ -162,6 +164,16 @@ def recorded_number(x) -> float | None:
         return None
 
 
+def named(row: dict, experiment: dict) -> dict:
+    """``row`` with its backbone named as ``evaluation.compare`` names it now: a table whose spec
+    gated every planned evaluation (``plan_gate``) recorded its planned rows as ``DICP + plan``,
+    a variant that is not the reference planner, so it is read as ``DICP + plan, gated``."""
+    gate = (experiment.get("evaluate") or {}).get("plan_gate", "always")
+    if gate != "always" and row["backbone"].endswith(" + plan"):
+        return {**row, "backbone": row["backbone"] + ", gated"}
+    return row
+
+
 def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
     """A table's rows of one env and backbone, each with its arm (one per sweep value);
     ``ValueError`` when the cells are malformed."""
@@ -180,6 +192,7 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
             if not isinstance(cell.get("arm"), str):
                 raise UserError(f"a cell has no arm: {str(cell)[:60]}")
             if objective_of(row["backbone"]) == objective:
+                row = named(row, summary.get("experiment") or {})
                 out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
 

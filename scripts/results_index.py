@@ -23,8 +23,8 @@ from pathlib import Path
 from urllib.parse import quote
 
 from results_coverage import coverage as cells_of
+from results_coverage import named, render_coverage
 from results_coverage import recorded_number as _num
-from results_coverage import render_coverage
 
 from lhf_hf.errors import NotFoundError, UserError
 from lhf_hf.reproduce.experiment import PRESETS, shadows_shipped, train_settings
@@ -126,7 +126,7 @@ def _table(folder: Path, summary: dict) -> list[str]:
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
-            lines.append(_row(label, cell["env_id"], r, paper))
+            lines.append(_row(label, cell["env_id"], named(r, exp), paper))
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]

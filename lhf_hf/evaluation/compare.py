@@ -84,11 +84,21 @@ def backbone_of(r: dict) -> str:
     """The table row of a run: its objective, planning, and "seen tasks" when the model trained on
     some of the evaluated tasks (``lhf evaluate --allow-seen``), so such a row is never read as
     unseen-task ICRL."""
-    return (
-        r["objective"].upper()
-        + (" + plan" if r["config"].get("plan") else "")
-        + (" [seen tasks]" if is_seen(r) else "")
-    )
+    return r["objective"].upper() + _planning(r["config"]) + (" [seen tasks]" if is_seen(r) else "")
+
+
+def _planning(config: dict) -> str:
+    """`` + plan`` for the reference planner (every step once the context is full, the learned
+    dynamics, actions in sampled order), with each departure named: a variant of ours is its own
+    row, never merged into the reference's (issue 55)."""
+    if not config.get("plan"):
+        return ""
+    how = [
+        *(["gated"] if config.get("plan_gate", "always") != "always" else []),
+        *(["true dynamics"] if config.get("plan_dynamics", "model") != "model" else []),
+        *(["argmax order"] if config.get("plan_order", "sample") != "sample" else []),
+    ]
+    return " + plan" + "".join(f", {h}" for h in how)
 
 
 def _group(paths: list[str], side: str) -> dict[str, list[dict]]:

@@ -18,6 +18,7 @@ from lhf_hf.configs.filter import READS as FILTER_READS
 from lhf_hf.constants import OBJECTIVES
 from lhf_hf.envs import get_spec
 from lhf_hf.errors import UnknownNameError, UserError
+from lhf_hf.evaluation.compare import backbone_of
 
 #: The specs ship inside the package (package data), so ``lhf reproduce`` works from a wheel too.
 EXPERIMENTS_DIR = Path(__file__).resolve().parent / "experiments"
@@ -51,6 +52,16 @@ TOP_KEYS = {"title", "paper_table", "budget", "envs", "objectives", "runs", *CON
 #: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
 #: evaluations (which ``plan_dicp: both`` runs from the same settings)
 PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
+#: How a DICP model is evaluated (``evaluate.plan_dicp``, one evaluation stage each): ``none``
+#: without planning, ``plan`` with the spec's planning settings (the reference planner unless the
+#: spec sets a variant), ``gated`` with planning gated on a seen reward (a variant of ours).
+#: ``true`` / ``false`` / ``both`` name ``[plan]`` / ``[none]`` / ``[none, plan]``.
+PLAN_MODES = ("none", "plan", "gated")
+_PLAN_ALIASES = {True: ("plan",), False: ("none",), "both": ("none", "plan")}
+
+
+def _is_alias(modes) -> bool:
+    return isinstance(modes, bool | str) and modes in _PLAN_ALIASES
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -120,10 +131,25 @@ class Experiment:
             raise UserError(f"{name}: objectives must be a non-empty subset of {OBJECTIVES}")
         if not 1 <= self.runs <= MAX_RUNS:
             raise UserError(f"{name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
-        if self.evaluate.get("plan_dicp", False) not in (True, False, "both"):
+        modes = self.evaluate.get("plan_dicp", False)
+        if not (
+            _is_alias(modes)
+            or isinstance(modes, list)
+            and modes
+            and set(modes) <= set(PLAN_MODES)
+            and len(set(modes)) == len(modes)
+        ):
             raise UserError(
-                f"{name}: evaluate.plan_dicp must be true, false or 'both', "
-                f"got {self.evaluate['plan_dicp']!r}"
+                f"{name}: evaluate.plan_dicp must be true, false, 'both' or a list of "
+                f"{', '.join(PLAN_MODES)} (each once), got {modes!r}"
+            )
+        if (
+            "gated" in self.dicp_plan_modes()
+            and self.evaluate.get("plan_gate", "always") != "always"
+        ):
+            raise UserError(
+                f"{name}: evaluate.plan_gate {self.evaluate['plan_gate']!r} gates every planned "
+                "evaluation: with plan_dicp's 'gated' leave plan_gate out (plan = the reference)"
             )
         for stage in CONFIGS:
             _check_keys(f"{name}: {stage}", getattr(self, stage), stage, STAGE_EXTRAS[stage])
@@ -235,17 +261,27 @@ class Experiment:
             **train_settings(self.train, objective),
         )
 
-    def eval_config(self, run: int, *, model: str, out: str, plan: bool) -> EvalConfig:
+    def eval_config(self, run: int, *, model: str, out: str, plan: str = "none") -> EvalConfig:
+        """Run ``run``'s evaluation config in plan mode ``plan`` (``PLAN_MODES``)."""
         settings = {k: v for k, v in self.evaluate.items() if k != "plan_dicp"}
-        if not plan:  # planning settings belong to the planned evaluations only
+        if plan == "none":  # planning settings belong to the planned evaluations only
             settings = {k: v for k, v in settings.items() if k not in PLAN_SETTINGS}
+        elif plan == "gated":
+            settings["plan_gate"] = "reward_seen"
         # a stage folder is the cache's own: a half-written evaluation in it is replaced
-        return EvalConfig(model=model, out=out, plan=plan, seed=run, overwrite=True, **settings)
+        return EvalConfig(
+            model=model, out=out, plan=plan != "none", seed=run, overwrite=True, **settings
+        )
 
-    def dicp_plan_modes(self) -> tuple[bool, ...]:
-        """The ``plan`` values DICP models are evaluated with (one evaluation stage each)."""
-        mode = self.evaluate.get("plan_dicp", False)
-        return (False, True) if mode == "both" else (bool(mode),)
+    def dicp_plan_modes(self) -> tuple[str, ...]:
+        """The plan modes DICP models are evaluated in (one evaluation stage each)."""
+        modes = self.evaluate.get("plan_dicp", False)
+        return _PLAN_ALIASES[modes] if _is_alias(modes) else tuple(modes)
+
+    def column(self, objective: str, plan: str = "none") -> str:
+        """The table row ``compare`` gives this backbone's evaluations (``backbone_of``)."""
+        cfg = self.eval_config(0, model="-", out="-", plan=plan)
+        return backbone_of({"objective": objective, "config": cfg.to_dict()})
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

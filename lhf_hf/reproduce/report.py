@@ -73,8 +73,8 @@ def percent(x: float | None) -> str:
 
 def columns(exp: Experiment) -> list[str]:
     """The E table's backbone columns: one per objective, DICP once per planning mode."""
-    modes = {o: exp.dicp_plan_modes() if o == "dicp" else (False,) for o in exp.objectives}
-    return [o.upper() + (" + plan" if plan else "") for o in exp.objectives for plan in modes[o]]
+    modes = {o: exp.dicp_plan_modes() if o == "dicp" else ("none",) for o in exp.objectives}
+    return [exp.column(o, plan) for o in exp.objectives for plan in modes[o]]
 
 
 def readings(exp: Experiment, cells: list[dict]) -> list[dict]:
@@ -158,9 +158,11 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "in parentheses. The verdicts judge on the paired t-test of the runs' return differences "
         "(LHF - baseline): an effect counts when their 95% interval excludes 0 (docs/reproduce.md).",
     ]
-    if exp.dicp_plan_modes() == (False, True):
-        lines += ["", "DICP is evaluated from the same checkpoints without planning (`DICP`) and "
-                  "with it (`DICP + plan`); the paper's DICP values are with planning."]  # fmt: skip
+    if len(exp.dicp_plan_modes()) > 1:
+        named = ", ".join(f"`{exp.column('dicp', m)}`" for m in exp.dicp_plan_modes())
+        lines += ["", f"DICP is evaluated from the same checkpoints as {named}: `DICP + plan` is "
+                  "the reference planner (every step once the context is full), a suffix names "
+                  "a variant of ours; the paper's DICP values are with planning."]  # fmt: skip
     by_label: dict[str, list[str]] = {}
     for r in found:
         by_label.setdefault(r["label"], []).append(_entry(r))

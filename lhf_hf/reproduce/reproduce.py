@@ -133,7 +133,7 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                     tr = Stage("train", f"{tag}: {obj.upper()} {arm}", tc, do_train, reads,
                                train_cost(env, train_cfg))  # fmt: skip
                     stages.append(tr)
-                    for plan in exp.dicp_plan_modes() if obj == "dicp" else (False,):
+                    for plan in exp.dicp_plan_modes() if obj == "dicp" else ("none",):
                         eval_cfg = exp.eval_config(run, model="", out="", plan=plan)
                         ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
                         ec["model"] = tr.hash
@@ -145,7 +145,7 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                                 progress=progress,
                             )
 
-                        what = f"{obj.upper()}{' + plan' if plan else ''} {arm}"
+                        what = f"{exp.column(obj, plan)} {arm}"
                         cost = eval_cost(env, obj, train_cfg, eval_cfg, run)
                         ev = Stage("evaluate", f"{tag}: {what}", ec, do_eval, (tr,), cost)
                         stages.append(ev)

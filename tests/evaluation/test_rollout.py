@@ -341,8 +341,9 @@ def test_compare_errors(tmp_path):
         compare([a], [f"{a}/eval_results.json"])
     with pytest.raises(ValueError, match="are the same evaluation run"):
         compare([a, a], [a2, a3])
+    # a planning variant is its own row: a gated run is never compared with the reference's
     p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True)  # written before plan_gate existed
-    with pytest.raises(ValueError, match=r"settings: plan_gate='always' \(.*/p1\); plan_gate='reward_seen' \(.*/p2\)$"):  # fmt: skip
+    with pytest.raises(ValueError, match=r"baseline \['DICP \+ plan'\] and LHF \['DICP \+ plan, gated'\]"):  # fmt: skip
         compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen")])  # fmt: skip
     # a damaged or hand-edited result is named, with what is wrong
     bad = tmp_path / "bad"
@@ -359,7 +360,7 @@ def test_compare_errors(tmp_path):
         (bad / name / "eval_results.json").write_text(text)
         with pytest.raises(ValueError, match=f"{name}/eval_results.json: .*{why}"):
             compare([a], [str(bad / name)])
-    with pytest.raises(ValueError, match="plan_dynamics='oracle'"):
+    with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, true dynamics'\]"):
         compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle")])  # fmt: skip
     # planner settings do not matter without planning; the defaults match results written before
     r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],

@@ -12,6 +12,7 @@ import yaml
 
 from lhf_hf.cli.main import main
 from lhf_hf.configs import CollectConfig, EvalConfig, FilterConfig, TrainConfig
+from lhf_hf.errors import UserError
 from lhf_hf.reproduce import (
     estimate_experiment,
     experiment_names,
@@ -58,7 +59,7 @@ def test_every_shipped_experiment_loads_at_every_preset(tmp_path):
             stages, evals = plan_stages(exp, tmp_path)
             # every (env, arm, backbone) cell has one evaluation per run (DICP: per planning mode)
             for (_, _, obj), v in evals.items():
-                modes = exp.dicp_plan_modes() if obj == "dicp" else (False,)
+                modes = exp.dicp_plan_modes() if obj == "dicp" else ("none",)
                 assert len(v) == exp.runs * len(modes)
             assert len({s.hash for s in stages}) == len(stages)  # no two stages share a folder
     main = load_experiment("darkroom-main", "paper")
@@ -106,7 +107,7 @@ def test_spec_errors(tmp_path):
         load_experiment(_spec(tmp_path, {**TINY, "envs": ["darkroom-xl"]}, "env"), "quick")
     with pytest.raises(ValueError, match="objectives"):
         load_experiment(_spec(tmp_path, {**TINY, "objectives": ["bc"]}, "obj"), "quick")
-    with pytest.raises(ValueError, match="plan_dicp must be true, false or 'both'"):
+    with pytest.raises(ValueError, match="plan_dicp must be true, false, 'both' or a list"):
         load_experiment(_spec(tmp_path, {**TINY, "evaluate": {"plan_dicp": "yes"}}, "pl"), "quick")
     # an env without a known optimal return needs filter.r_max, named at load, not after collecting
     mw = {**TINY, "envs": ["metaworld-reach-wall"], "collect": {"collector": "sb3"}}
@@ -222,7 +223,7 @@ def test_stage_configs_take_the_config_defaults(tmp_path):
     layered = load_experiment(_spec(tmp_path, spec, "layered"), "quick")
     dicp = layered.train_config("dicp", 1, dataset="d", selection=None, out="o")
     assert (dicp.max_steps, dicp.lr) == (4, tr.lr)
-    assert exp.eval_config(1, model="m", out="o", plan=False) == EvalConfig(
+    assert exp.eval_config(1, model="m", out="o", plan="none") == EvalConfig(
         model="m", out="o", seed=1, episodes=2, overwrite=True
     )
 
@@ -231,7 +232,7 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     dicp = {**TINY, "objectives": ["ad", "dicp"], "paper": {"darkroom": {"ad": 25.1, "dicp": 15.2}}}
     both = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": "both"}}, "b"))
     plan = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": True}}, "p"))
-    assert both.dicp_plan_modes() == (False, True) and plan.dicp_plan_modes() == (True,)
+    assert both.dicp_plan_modes() == ("none", "plan") and plan.dicp_plan_modes() == ("plan",)
     stages_b, evals_b = plan_stages(both, tmp_path)
     stages_p, evals_p = plan_stages(plan, tmp_path)
     ev = evals_b[("darkroom", "baseline", "dicp")]  # 2 runs x 2 modes, run by run
@@ -367,7 +368,37 @@ def test_planning_settings_reach_only_the_planned_evaluations(tmp_path):
     assert free and all(a == g for a, g in free)
     assert planned and all(a.hash != g.hash for a, g in planned)
     assert all(g.config["plan_gate"] == "reward_seen" for _, g in planned)
-    assert gated.eval_config(0, model="m", out="o", plan=False).plan_gate == "always"
+    assert gated.eval_config(0, model="m", out="o", plan="none").plan_gate == "always"
+
+
+def test_dicp_is_evaluated_per_plan_mode_each_labelled(tmp_path):
+    """plan_dicp [none, plan, gated]: three evaluation stages per DICP model; `plan` is the
+    reference planner (no gate), `gated` its own row ("DICP + plan, gated"); the `both` alias keeps
+    its stages' hashes; a spec gating every planned evaluation cannot also ask for `gated`."""
+    dicp = {**TINY, "objectives": ["dicp"], "paper": {"darkroom": {"dicp": 15.2}}}
+    three = load_experiment(
+        _spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": ["none", "plan", "gated"]}}, "t")
+    )
+    both = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": "both"}}, "b"))
+    ev_t = plan_stages(three, tmp_path)[1][("darkroom", "baseline", "dicp")]
+    ev_b = plan_stages(both, tmp_path)[1][("darkroom", "baseline", "dicp")]
+    assert len(ev_t) == 3 * three.runs and len(ev_b) == 2 * both.runs
+    ev_t, ev_b = ev_t[:3], ev_b[:2]  # run 0's
+    assert [(e.config["plan"], e.config["plan_gate"]) for e in ev_t] == [
+        (False, "always"), (True, "always"), (True, "reward_seen")
+    ]  # fmt: skip
+    assert [e.hash for e in ev_t[:2]] == [e.hash for e in ev_b]
+    assert [three.column("dicp", m) for m in ("none", "plan", "gated")] == [
+        "DICP", "DICP + plan", "DICP + plan, gated"
+    ]  # fmt: skip
+    assert "DICP + plan, gated" in ev_t[2].label
+    for bad, match in (
+        ({"plan_dicp": ["plan", "plan"]}, "each once"),
+        ({"plan_dicp": ["sometimes"]}, "a list of none, plan, gated"),
+        ({"plan_dicp": ["plan", "gated"], "plan_gate": "reward_seen"}, "leave plan_gate out"),
+    ):
+        with pytest.raises(UserError, match=match):
+            load_experiment(_spec(tmp_path, {**dicp, "evaluate": bad}, "x"))
 
 
 def test_sweep_arms():
@@ -527,7 +558,7 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert {s.hash for s in some} <= set(all_stages)
     trained = [s.config["objective"] for s in some if s.kind == "train"]
     assert trained == ["dicp"] * 6  # 3 runs x (baseline, LHF)
-    assert sum(s.kind == "evaluate" for s in some) == 12  # each with and without planning
+    assert sum(s.kind == "evaluate" for s in some) == 18  # each without planning, planned, gated
     assert report_out(dicp) == "results/darkroom-main-cpu-dicp"
     assert report_out(full) == "results/darkroom-main-cpu"
     with pytest.raises(ValueError, match="darkroom-main has no backbone 'bc': choose among"):
@@ -537,7 +568,7 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert "darkroom-noisy has no backbone 'dicp': choose among ['ad']" in capsys.readouterr().err
     assert main(["reproduce", "darkroom-noisy", "--preset", "cpu", "--objectives", "dicp",
                  "--work", str(work), "--estimate"]) == 0  # fmt: skip
-    assert "1 backbone(s), 24 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 4)
+    assert "1 backbone(s), 30 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 6)
 
 
 @pytest.mark.slow

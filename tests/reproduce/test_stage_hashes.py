@@ -31,13 +31,13 @@ PINNED = {
         {"collect": "7d7be3a4270e", "derive": "a7910b8e97dc", "filter": "ecf6cb53f161",
          "train": "f2f92ff6c193", "evaluate": "3ad4f78f08ee"},
         "a609542c53bfd2a7",
-        {"darkroom-main": (48, "a32ddb292ac87911"), "metaworld-sac": (60, "151a50d1da17e056")},
+        {"darkroom-main": (54, "d6272224405940dd"), "metaworld-sac": (60, "151a50d1da17e056")},
     ),
     "kernel": (
         {"collect": "064a4099ef67", "derive": "303f4a2fcde0", "filter": "337d5f4bd84a",
          "train": "dc7ae205d9b2", "evaluate": "29a9056fd9d3"},
         "bdb0f6a2e672803b",
-        {"darkroom-main": (48, "044ca310e949e48b"), "metaworld-sac": (60, "b612d46b86fb8a3f")},
+        {"darkroom-main": (54, "a4c0a13c2129e115"), "metaworld-sac": (60, "b612d46b86fb8a3f")},
     ),
 }  # fmt: skip
 

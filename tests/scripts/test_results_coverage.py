@@ -51,16 +51,20 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     del old["train"]["by_objective"]  # DICP then trained for the shared 1,000 steps
     assert "train.max_steps 1000 (now 4000)" in diff(old, "dicp")
     # the planner's settings date DICP's cells only; a default written out is no difference
-    gate = json.loads(json.dumps(now))
-    gate["evaluate"]["plan_gate"] = "always"
+    gate = json.loads(json.dumps(now))  # a table whose every planned evaluation was gated
+    gate["evaluate"].update(plan_dicp="both", plan_gate="reward_seen")
     gate["evaluate"]["episodes"] = EvalConfig(model="-", out="-").episodes
     assert diff(gate, "ad") == [] and diff(gate, "dpt") == []
-    assert diff(gate, "dicp") == ["evaluate.plan.plan_gate always (now reward_seen)"]
+    assert diff(gate, "dicp") == [
+        "evaluate.gated absent (now run)", "evaluate.plan.plan_gate reward_seen (now always)"
+    ]  # fmt: skip
     # a mode or an arm only one side has is one entry; the derived chunk size written out is none
     once = json.loads(json.dumps(now))
     once["evaluate"]["plan_dicp"] = True
     once["collect"]["tasks_per_chunk"] = 500  # what 100 histories give anyway
-    assert diff(once, "dicp") == ["evaluate.policy absent (now run)"] and diff(once, "ad") == []
+    assert diff(once, "dicp") == [
+        "evaluate.gated absent (now run)", "evaluate.policy absent (now run)"
+    ] and diff(once, "ad") == []  # fmt: skip
     lam = load_experiment("darkroom-lambda", "cpu")
     fewer = json.loads(json.dumps(lam.to_dict()))
     fewer["filter"]["sweep"]["values"] = [0, 0.5, 1, 2]
