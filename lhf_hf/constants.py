@@ -1,4 +1,5 @@
-"""Column names, file names and format versions: spelled out here and nowhere else (docs/design.md 4)."""
+"""Column names, the dataset's file names and format versions (docs/design.md 4); the other
+artifacts name their files beside their code."""
 
 from typing import Literal, get_args
 

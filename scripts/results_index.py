@@ -205,8 +205,8 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "
-        "are). Tables made before the differences were recorded are judged on E's interval, or on "
-        "|E| against its std before that."
+        "are). A table that recorded no differences is judged on E's interval, and one that recorded "
+        "no interval on |E| against its std."
         + (
             ""
             if where.name == "results"

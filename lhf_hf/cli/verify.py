@@ -8,7 +8,10 @@ from lhf_hf.configs.commands import VerifyOptions
 
 from .flags import add_params, add_progress, values
 
-HELP = "check a dataset, selection, model or other lhf output folder: files unchanged, contents consistent"
+HELP = (
+    "check a dataset, selection, model or other lhf output folder, or a Hub repo id: files "
+    "unchanged, contents consistent"
+)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

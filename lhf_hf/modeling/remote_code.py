@@ -1,6 +1,6 @@
 """The model's code beside its weights, so that transformers alone loads a checkpoint:
 ``AutoModel.from_pretrained(path, trust_remote_code=True)`` in an environment without lhf_hf
-(docs/hub.md, "Loading with transformers alone").
+(docs/hub.md, "Loading a model with transformers alone").
 
 transformers' own route (``register_for_auto_class``: ``save_pretrained`` then copies the file that
 defines the class and the files it imports relatively, ``custom_object_save``) copies files
