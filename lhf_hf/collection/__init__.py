@@ -1,4 +1,7 @@
-"""Collect learning histories: SB3 reference collector, recorder, protocols (docs/design.md 3).
+"""Collect learning histories (docs/design.md 3): ``collect`` (``driver.py``: tasks in worker
+processes, resume, the dataset's writer) runs the batched collector (``batched_collector.py``, the
+stacked PPO of ``batched_ppo.py`` / the C++ kernel of ``native.py``) or the SB3 reference
+(``sb3_collector.py``: the protocols as learner plans, ``recorder.py``).
 
 The names below are imported on first use (PEP 562), so that ``lhf_hf.collection.ppo_backends``
 imports with torch alone (e.g. on a GPU machine without Stable-Baselines3 or ``datasets``).
