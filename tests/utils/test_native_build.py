@@ -33,7 +33,7 @@ def test_editing_an_included_header_rebuilds(tmp_path, monkeypatch):
 
 
 def test_the_kernels_include_the_shared_header():
-    from lhf_hf.modeling import attention_kernel
+    from lhf_hf.modeling import attention_kernel, tree_attention
 
-    for source in (attention_kernel.SOURCE,):
+    for source in (attention_kernel.SOURCE, tree_attention.SOURCE):
         assert [h.name for h in native_build.local_headers(source)] == ["simd.h"]

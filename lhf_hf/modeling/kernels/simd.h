@@ -1,4 +1,4 @@
-// Vector helpers shared by the C++ attention kernels (train_attention.cpp):
+// Vector helpers shared by the C++ attention kernels (train_attention.cpp, tree_attention.cpp):
 // GCC vector types of one register (zmm with AVX-512, ymm with AVX2), loads and stores, broadcasts,
 // horizontal sums and maxima, and an exp for x <= 0.  Header-only, everything inline, in an
 // anonymous namespace: each kernel library gets its own copy.  lhf_hf/utils/native_build.py hashes
