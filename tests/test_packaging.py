@@ -31,9 +31,10 @@ def test_wheel_contains_the_package_data(tmp_path):
         package / "reproduce" / "rates.json",
         *package.glob("collection/kernels/*.cpp"),
         *package.glob("modeling/kernels/*.cpp"),
+        *package.glob("modeling/kernels/*.h"),
         *package.glob("launch/*.yaml"),
     ]
-    assert len(data) >= 3 + 8 + 1 + 1 + 1 + 1 and all(p.exists() for p in data)
+    assert len(data) >= 3 + 8 + 1 + 1 + 1 + 1 + 1 and all(p.exists() for p in data)
     missing = [
         str(p.relative_to(REPO)) for p in data if p.relative_to(REPO).as_posix() not in names
     ]

@@ -33,7 +33,9 @@ import torch
 from transformers import DynamicCache
 
 from lhf_hf.errors import UserError
+from lhf_hf.modeling import attention_kernel
 from lhf_hf.modeling.attention import band_mask, token_windows
+from lhf_hf.training.attention_backend import kernel_unsupported
 
 from .decode import LeanLlama, supported
 
@@ -53,8 +55,11 @@ class Context:
     max_tokens: ``W`` of a transition token (default: the model's window, see the module doc).
     engine: the cached step's forward: ``auto`` (``decode.LeanLlama``, the same function without HF's
     per-module overhead, wherever the model allows it), ``lean`` (that, or an error saying why not) or
-    ``hf`` (``LlamaModel.forward`` with a ``DynamicCache``).  ``recompute`` and ``window`` always run
-    HF's forward; ``self.engine`` says which ran.
+    ``hf`` (``LlamaModel.forward`` with a ``DynamicCache``).  ``recompute`` and ``window`` run HF's
+    forward over whole windows; with ``auto`` its attention runs in the C++ attention kernel
+    (``lhf_hf.modeling.attention_kernel``, the training kernel's forward: the same function to float32
+    rounding, ~5x faster than SDPA at head dim 8 over a 400-token window, BENCHMARKS.md) wherever it
+    loads (``engine == "kernel"``), with ``hf`` in the model's own.  ``self.engine`` says which ran.
     """
 
     def __init__(
@@ -73,7 +78,12 @@ class Context:
         if engine == "lean" and why_not is not None:
             raise UserError(f"engine='lean' cannot run this model: {why_not}")
         use_lean = mode == "cache" and engine != "hf" and why_not is None
-        self.engine = "lean" if use_lean else "hf"
+        use_kernel = (
+            mode != "cache"
+            and engine == "auto"
+            and kernel_unsupported(model.config, next(model.parameters()).device) is None
+        )
+        self.engine = "lean" if use_lean else "kernel" if use_kernel else "hf"
         self.lean = LeanLlama(model) if use_lean else None
         c = model.config
         self.dicp = c.objective == "dicp"
@@ -156,7 +166,7 @@ class Context:
         k_pos = torch.arange(self.start, self.pos + n)  # (L,)
         mask = band_mask(k_pos, self.windows, k_pos, embeds.dtype)  # (L, L)
         L = len(k_pos)
-        hidden, _ = self.model.run_backbone(
+        hidden, _ = self._run_window(
             self.embeds,
             position_ids=k_pos[None].expand(B, L),
             use_cache=False,
@@ -171,8 +181,20 @@ class Context:
         pos = torch.arange(L).unsqueeze(0).expand(B, L)
         # the window's keys and values are kept for a planner (``snapshot``): encoding the window
         # again there would double the cost of every planned step
-        hidden, self.cache = self.model.run_backbone(self.embeds, position_ids=pos, use_cache=True)
+        hidden, self.cache = self._run_window(self.embeds, position_ids=pos, use_cache=True)
         return hidden[:, -n:]
+
+    def _run_window(self, embeds, **kwargs):
+        """``run_backbone`` over a whole window (``recompute``, ``window``); its attention in the C++
+        kernel with ``engine == "kernel"`` (the class docstring)."""
+        if self.engine != "kernel":
+            return self.model.run_backbone(embeds, **kwargs)
+        config = self.model.backbone.config  # the attention layers read its implementation
+        saved, config._attn_implementation = config._attn_implementation, attention_kernel.NAME
+        try:
+            return self.model.run_backbone(embeds, **kwargs)
+        finally:
+            config._attn_implementation = saved
 
     def _keep(self, embeds, win, keep: int) -> None:
         """Append token embeddings (B, n, D) and keep the last ``keep``."""
@@ -198,7 +220,7 @@ class Context:
         B, L, _ = self.embeds.shape  # recompute
         k_pos = torch.arange(self.start, self.pos)  # (L,)
         mask = band_mask(k_pos, self.windows, k_pos, self.embeds.dtype)
-        _, cache = self.model.run_backbone(
+        _, cache = self._run_window(
             self.embeds,
             position_ids=k_pos[None].expand(B, L),
             use_cache=True,

@@ -172,6 +172,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         "planned_steps": res.planned_steps,
         "planned_actions": res.planned_actions,
         "engine": res.engine,
+        "plan_engine": res.plan_engine,
         "context": res.context,
         "versions": library_versions(["transformers"]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

@@ -5,7 +5,10 @@ Imagined paths are a *tree* of tokens appended to the rollout's cached context: 
 All beams of all tasks extend the one shared context in a single backbone call per depth, with a
 tree attention mask (each token sees the context window and its own path only) and the positions it
 would have on a linear path, so the context is encoded once per real step and never copied per beam
-(the reference code recomputes the context for every beam).
+(the reference code recomputes the context for every beam).  ``tree.py`` runs the backbone over the
+tree: a C++ kernel that computes only the scores each token sees (``engine="kernel"``, the default
+where the model allows it) or ``LlamaModel.forward`` with the mask (``engine="torch"``, the
+reference); the search and its choices are the same.
 
 - ``beam_search`` (discrete actions): beams start from the current state; each depth expands every
   beam with every action, scores a candidate by the sum of predicted rewards along its path, keeps
@@ -24,6 +27,17 @@ import torch
 from lhf_hf.errors import UserError
 
 from .context import Context
+from .tree import make_tree
+
+
+def depth_tokens(actions: int, horizon: int, beams: int) -> list[int]:
+    """Imagined tokens of a beam search per depth: ``actions`` query-action tokens at depth 0, then
+    each kept beam's transition token and its ``actions`` query-action tokens."""
+    out, nb = [actions], 1
+    for _ in range(1, horizon):
+        nb = min(beams, nb * actions)
+        out.append(nb * (1 + actions))
+    return out
 
 
 def _rank_candidates(score: torch.Tensor, policy_rank: torch.Tensor, keep: int) -> torch.Tensor:
@@ -32,42 +46,6 @@ def _rank_candidates(score: torch.Tensor, policy_rank: torch.Tensor, keep: int) 
     order = torch.argsort(policy_rank, dim=1, stable=True)  # secondary key first
     by_score = torch.argsort(score.gather(1, order), dim=1, descending=True, stable=True)
     return order.gather(1, by_score)[:, :keep]
-
-
-class _Tree:
-    """Appends tree tokens to a snapshot of the context; builds their attention mask."""
-
-    def __init__(self, model, context: Context):
-        self.model = model
-        self.cache, self.L0, self.pos0 = context.snapshot()
-        self.window = context.max_tokens  # tokens a transition token sees (its own included)
-        self.n_tree = 0
-
-    def forward(self, embeds, offsets, is_query, ancestors, new_links):
-        """embeds (B, n, D); offsets (n,) path offsets (0 = the first token after the context);
-        is_query (n,) bool; ancestors (B, n, n_tree) bool: earlier tree tokens each new token sees;
-        new_links (n, n) bool: new tokens each new token sees (itself included)."""
-        B, n, _ = embeds.shape
-        # every token sees at most its training window: a query-action token one more than a
-        # transition token, so the oldest context tokens drop out as the path grows
-        win = self.window + is_query.long()  # (n,)
-        drop = (self.L0 + offsets + 1 - win).clamp(min=0)  # (n,)
-        ctx = torch.arange(self.L0)[None, :] >= drop[:, None]  # (n, L0)
-        mask = torch.cat(
-            [ctx.expand(B, n, self.L0), ancestors, new_links.expand(B, n, n)], dim=2
-        )  # (B, n, L0 + n_tree + n)
-        pos = (self.pos0 + offsets).expand(B, n)
-        # an additive float mask: CPU SDPA converts a boolean one on every layer
-        bias = torch.zeros(mask.shape, dtype=embeds.dtype).masked_fill_(~mask, float("-inf"))
-        hidden, self.cache = self.model.run_backbone(
-            embeds,
-            backbone_cache=self.cache,
-            position_ids=pos,
-            use_cache=True,
-            attention_mask=bias[:, None],
-        )
-        self.n_tree += n
-        return hidden
 
 
 @torch.no_grad()
@@ -82,6 +60,7 @@ def beam_search(
     order: str = "argmax",
     generator: torch.Generator | None = None,
     trace: list | None = None,
+    engine: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
@@ -97,17 +76,22 @@ def beam_search(
     trace: a list that receives, per depth, what the planner imagined: ``{depth, states (B, N, S),
         actions (B, N), reward (B, N), next_state (B, N, S)}`` for its N candidates (numpy), so a
         diagnosis can hold them against the true dynamics.
+    engine: the backbone over the tree (``tree.py``): ``auto`` (the C++ tree attention kernel where
+        the model allows it), ``kernel`` (that, or an error saying why not) or ``torch`` (the
+        reference: ``LlamaModel.forward`` with a tree mask).
     """
     if order not in ("sample", "argmax"):
         raise UserError(f"order must be 'sample' or 'argmax', got {order!r}")
     B, A = logits.shape
-    tree = _Tree(model, context)
+    tree = make_tree(
+        model, context, beams=min(beams, A ** (horizon - 1)), group=1 + A,
+        path=max(2 * horizon - 3, 0), engine=engine,
+    )  # fmt: skip
     b_idx = torch.arange(B)[:, None]
     nb = 1
     beam_state = states[:, None]  # (B, nb, S)
     beam_score = torch.zeros(B, 1)
     beam_first = None  # (B, nb)
-    beam_anc = torch.zeros(B, 1, 0, dtype=torch.bool)  # (B, nb, n_tree) the path of each beam
     beam_T = None  # (B, nb, D) each beam's imagined transition token, appended at the next depth
     policy = logits[:, None]  # (B, nb, A)
     for depth in range(horizon):
@@ -126,13 +110,9 @@ def beam_search(
         if beam_T is not None:
             is_query[0] = False
             offsets[0] = 2 * depth - 1
-        links = torch.eye(per_beam, dtype=torch.bool)
-        if beam_T is not None:
-            links[1:, 0] = True  # the beam's query-action tokens follow its transition token
-        new_links = torch.block_diag(*[links] * nb)  # (n, n)
-        ancestors = beam_anc.repeat_interleave(per_beam, dim=1)  # (B, n, n_tree)
-        base = tree.n_tree
-        hidden = tree.forward(embeds, offsets.repeat(nb), is_query.repeat(nb), ancestors, new_links)
+        # the beam's query-action tokens follow its transition token: they see it
+        shared = 0 if beam_T is None else 1
+        hidden = tree.forward(embeds, offsets, is_query, shared)
         hidden = hidden.view(B, nb, per_beam, -1)
         if beam_T is not None:  # the policy at the imagined state orders this depth's candidates
             policy = model.action_distribution(hidden[:, :, 0])["action_logits"]  # (B, nb, A)
@@ -172,11 +152,7 @@ def beam_search(
             break
         # the kept candidates' paths: their beam's path + [T_j] + their own query-action token
         j, a = idx // A, idx % A  # (B, keep)
-        anc = torch.zeros(B, keep, tree.n_tree, dtype=torch.bool)
-        anc[:, :, :base] = beam_anc[b_idx, j]
-        if beam_T is not None:
-            anc[b_idx, torch.arange(keep)[None], base + j * per_beam] = True
-        anc[b_idx, torch.arange(keep)[None], base + j * per_beam + (per_beam - A) + a] = True
+        tree.select(j, (per_beam - A) + a)
         prev_state = beam_state[b_idx, j]  # (B, keep, S)
         next_state = s_hat[b_idx, idx]  # (B, keep, S)
         beam_T = model.embed_transitions(
@@ -187,7 +163,7 @@ def beam_search(
             prev_dones=torch.zeros(B, keep, dtype=torch.bool),
             has_prev=torch.ones(B, keep, dtype=torch.bool),
         )  # (B, keep, D)
-        beam_state, beam_anc, nb = next_state, anc, keep
+        beam_state, nb = next_state, keep
     return beam_first[:, 0], beam_score[:, 0]
 
 
@@ -202,8 +178,10 @@ def greedy_search(
     rng: np.random.Generator,
     low: float = -1.0,
     high: float = 1.0,
+    engine: str = "auto",
 ) -> torch.Tensor:
-    """(B, A) the candidate action with the highest predicted reward (policy mean + samples)."""
+    """(B, A) the candidate action with the highest predicted reward (policy mean + samples);
+    ``engine`` as ``beam_search``'s."""
     B, A = mean.shape
     z = torch.as_tensor(rng.standard_normal((B, samples - 1, A)), dtype=mean.dtype)
     cands = torch.cat(
@@ -211,13 +189,9 @@ def greedy_search(
     )  # (B, n, A)
     cands = cands.clamp(low, high)
     q = model.embed_query_actions(states[:, None].expand(B, samples, -1), cands)  # (B, n, D)
-    tree = _Tree(model, context)
-    hidden = tree.forward(
-        q,
-        torch.zeros(samples, dtype=torch.long),
-        torch.ones(samples, dtype=torch.bool),
-        torch.zeros(B, samples, 0, dtype=torch.bool),
-        torch.eye(samples, dtype=torch.bool),
+    tree = make_tree(model, context, beams=1, group=samples, path=0, engine=engine)
+    hidden = tree.forward(  # one group of ``samples`` tokens, each seeing the context and itself
+        q, torch.zeros(samples, dtype=torch.long), torch.ones(samples, dtype=torch.bool), 0
     )
     r_hat = model.dynamics(hidden)["reward_pred"]  # (B, n)
     best = r_hat.argmax(1)  # (B,)

@@ -21,6 +21,7 @@ from lhf_hf.errors import UserError
 from .context import Context
 from .planning import beam_search, greedy_search
 from .tokens import StepTokens
+from .tree import resolve_engine
 
 
 @dataclass
@@ -34,8 +35,11 @@ class RolloutResult:
     env_steps: int
     planned_steps: int  # steps on which the planner ran (for the whole batch)
     planned_actions: int = 0  # task-steps that acted on the plan (fewer with plan_gate)
-    engine: str = "hf"  # the cached step's forward: "lean" (decode.py) or "hf" (LlamaModel.forward)
+    # the context's forward: "lean" (decode.py), "hf" (LlamaModel.forward) or "kernel" (that with
+    # the C++ attention kernel, window and recompute contexts)
+    engine: str = "hf"
     context: str = "cache"  # the context mode that ran ("auto" resolved)
+    plan_engine: str | None = None  # the planner's tree engine (tree.py), None without planning
 
 
 def _tensor(x, dtype=None) -> torch.Tensor:
@@ -71,6 +75,7 @@ def rollout(
     plan_dynamics: str = "model",
     plan_order: str = "sample",
     plan_gate: str = "always",
+    plan_engine: str = "auto",
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
@@ -83,7 +88,9 @@ def rollout(
     reference's) or ``argmax``; ``plan_gate``: ``always`` (the reference: plan on every step once the
     context is full) or ``reward_seen`` (plan only for tasks whose context holds a nonzero reward;
     the others act on a policy sample: without an observed reward a predicted one can only be a
-    false positive of the learned head, which the search would follow; docs/evaluation.md)."""
+    false positive of the learned head, which the search would follow; docs/evaluation.md);
+    ``plan_engine``: the planner's backbone over its tree (``tree.py``), ``auto`` (the C++ tree
+    attention kernel where the model allows it), ``kernel`` or ``torch`` (the reference)."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -100,6 +107,7 @@ def rollout(
             "plan_gate='reward_seen' gates the beam search of discrete-action envs; continuous "
             "actions plan with the greedy search, whose dense rewards need no gate"
         )
+    plan_engine = resolve_engine(model, plan_engine) if plan else None
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     plan_gen = torch.Generator().manual_seed(seed)  # the planner's depth-0 orders
@@ -142,6 +150,7 @@ def rollout(
                     dynamics=tasks.imagine if plan_dynamics == "oracle" else None,
                     order=plan_order,
                     generator=plan_gen,
+                    engine=plan_engine,
                 )
                 action = action.numpy()
                 if plan_gate == "reward_seen":
@@ -163,6 +172,7 @@ def rollout(
                     dist["action_log_std"][:, 0],
                     c.plan_samples,
                     rng,
+                    engine=plan_engine,
                 ).numpy()
                 planned += 1
                 planned_actions += len(action)
@@ -195,4 +205,5 @@ def rollout(
         planned_actions=planned_actions,
         engine=ctx.engine,
         context=ctx.mode,
+        plan_engine=plan_engine,
     )

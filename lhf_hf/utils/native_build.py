@@ -101,6 +101,23 @@ def compiler(what: str = "the torch implementation") -> str:
     return cxx
 
 
+def local_headers(source: Path) -> list[Path]:
+    """The headers ``source`` includes from its own folder (``#include "name.h"``), recursively, in
+    order of first inclusion: their text is part of the build key, so editing a shared header
+    rebuilds every kernel that includes it."""
+    found: list[Path] = []
+
+    def scan(path: Path) -> None:
+        for name in re.findall(r'^\s*#\s*include\s*"([^"]+)"', path.read_text(), re.MULTILINE):
+            header = (path.parent / name).resolve()
+            if header not in found:
+                found.append(header)
+                scan(header)
+
+    scan(source)
+    return found
+
+
 def build_library(
     source: Path,
     stem: str,
@@ -119,6 +136,7 @@ def build_library(
         "\0".join(
             [
                 source.read_text(),
+                *(h.read_text() for h in local_headers(source)),
                 " ".join(flags),
                 version,
                 os.uname().machine,

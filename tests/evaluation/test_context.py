@@ -91,3 +91,28 @@ def test_window_snapshot_is_the_last_append_s_encoding_without_another_forward()
     run(torch.randn(2, 3, D, generator=g), backbone_cache=cache, use_cache=True,
         position_ids=torch.arange(L, L + 3)[None].expand(2, 3))  # fmt: skip
     assert ctx.cache.layers[0].keys.shape[2] == L  # the context's cache did not grow
+
+
+@torch.no_grad()
+def test_window_contexts_through_the_attention_kernel_equal_the_models_own_attention():
+    """``window`` (and ``recompute``) re-encode whole windows with HF's forward; with engine auto
+    their attention runs in the C++ kernel (where it loads): the same hidden states and the same
+    keys and values for a planner's snapshot as the model's own attention (engine hf)."""
+    from lhf_hf.modeling import attention_kernel
+
+    if attention_kernel.available() is not None:
+        pytest.skip(f"no kernel: {attention_kernel.available()}")
+    model = _model("dicp", 3, 4)
+    g = torch.Generator().manual_seed(1)
+    ctx = {e: Context(model, mode="window", engine=e) for e in ("auto", "hf")}
+    assert ctx["auto"].engine == "kernel" and ctx["hf"].engine == "hf"
+    for step in range(12):  # past the window (2K - 1 = 7 tokens)
+        is_q = [True, False] if step else [False]
+        tok = torch.randn(3, len(is_q), model.config.hidden_size, generator=g)
+        got, want = (c.append(tok, is_q) for c in (ctx["auto"], ctx["hf"]))
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+    snaps = [c.snapshot()[0] for c in (ctx["auto"], ctx["hf"])]
+    for a, b in zip(snaps[0].layers, snaps[1].layers, strict=True):
+        torch.testing.assert_close(a.keys, b.keys, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(a.values, b.values, atol=1e-5, rtol=1e-5)
+    assert model.config._attn_implementation == "lhf_sdpa"  # the model's own, restored

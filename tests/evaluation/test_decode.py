@@ -99,5 +99,10 @@ def test_unsupported_models_fall_back_or_fail_clearly():
     # the numpy decoder computes in float32: other dtypes run HF's forward
     assert "dtype torch.float64" in supported(_model().double())
     assert Context(_model().double(), mode="cache").engine == "hf"
-    # the recompute and window modes always run HF's forward
-    assert Context(model.eval(), mode="recompute").engine == "hf"
+    # the recompute and window modes run HF's forward, with auto its attention in the C++ kernel
+    # where it loads (test_context.py: the same function)
+    from lhf_hf.modeling import attention_kernel
+
+    kernel = "kernel" if attention_kernel.available() is None else "hf"
+    assert Context(model.eval(), mode="recompute").engine == kernel
+    assert Context(model.eval(), mode="window", engine="hf").engine == "hf"

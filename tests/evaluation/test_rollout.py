@@ -13,7 +13,7 @@ from lhf_hf.cli.main import main
 from lhf_hf.configs import EvalConfig, TrainConfig
 from lhf_hf.envs import get_spec, task_split
 from lhf_hf.evaluation import compare, evaluate, make_task_batch, rollout
-from lhf_hf.modeling import ICRLModel
+from lhf_hf.modeling import ICRLModel, attention_kernel, tree_attention
 from lhf_hf.training import model_config_for
 
 
@@ -144,7 +144,9 @@ def test_evaluate_writes_results_curve_and_model_card(tmp_path):
     assert r["split_seed"] == 3 and r["tasks"] == list(test) and len(r["tasks"]) == 8
     assert np.asarray(r["returns"]).shape == (8, 3) and r["planned_steps"] > 0
     # the default context is the model's training semantics: windows for a window-trained model
-    assert r["context"] == "window" and r["config"]["context"] == "auto" and r["engine"] == "hf"
+    assert r["context"] == "window" and r["config"]["context"] == "auto"
+    assert r["engine"] == ("kernel" if attention_kernel.available() is None else "hf")
+    assert r["plan_engine"] == ("kernel" if tree_attention.available() is None else "torch")
     assert np.isclose(r["mean_return"], np.mean(r["returns"]))
     saved = json.loads((tmp_path / "ev" / "eval_results.json").read_text())
     assert (
