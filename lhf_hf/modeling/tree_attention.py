@@ -124,17 +124,17 @@ def transposed(x: torch.Tensor) -> torch.Tensor:
     """(B, Hkv, L0, d) context keys or values -> (B, Hkv, d, Lp) float32, contiguous, zero-padded
     to a multiple of the kernel's vector width: the layout the kernel reads."""
     B, Hkv, L0, d = x.shape
-    out = torch.zeros(B, Hkv, d, _padded(L0))
+    out = torch.empty(B, Hkv, d, _padded(L0))
     out[..., :L0] = x.transpose(-1, -2)
+    out[..., L0:] = 0  # read in the last vector, masked: finite values, weight 0
     return out
 
 
 def path_buffers(B: int, Hkv: int, beams: int, d: int, tokens: int) -> tuple:
     """Keys and values (B, Hkv, beams, d, Pc) for ``beams`` paths of at most ``tokens`` tokens
-    (path and new tokens of a depth).  Zeroed: the kernel reads a path's last vector whole, its
-    columns past the path masked, and a masked weight (0) times an uninitialised NaN is NaN."""
+    (path and new tokens of a depth), uninitialised: the kernel writes what it reads."""
     shape = (B, Hkv, beams, d, _padded(tokens))
-    return torch.zeros(shape), torch.zeros(shape)
+    return torch.empty(shape), torch.empty(shape)
 
 
 def read_paths(buffer: torch.Tensor, nb: int, tokens: int) -> torch.Tensor:

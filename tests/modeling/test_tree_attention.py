@@ -29,6 +29,8 @@ def _search(B, H, Hkv, d, L0, depths, A=3, beams=4, seed=0, threads=None):
     kct, vct = tree_attention.transposed(k_ctx), tree_attention.transposed(v_ctx)
     path_max = max(2 * depths - 3, 0)
     bufs = [tree_attention.path_buffers(B, Hkv, beams, d, path_max + 1 + A) for _ in range(2)]
+    for buf in (t for pair in bufs for t in pair):  # uninitialised memory may hold NaN: never read
+        buf.fill_(float("nan"))
     paths_k = paths_v = torch.zeros(B, 1, 0, Hkv, d)  # the reference's paths (B, nb, plen, Hkv, d)
     parent = src_col = None
     plen, nb, got, want = 0, 1, [], []

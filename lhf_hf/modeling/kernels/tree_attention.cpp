@@ -144,9 +144,13 @@ int64_t build_path(const TreeArgs* a, int64_t b, int64_t kvh, int64_t j, float* 
       pv[c * Pc + plen + t] = vn[c];
     }
   }
-  // columns past np up to the vector width are read but masked: they hold zeros (the buffers
-  // are allocated zeroed) or earlier depths' keys and values, finite, so their weight 0 gives 0
-  return plen + per;
+  // the last vector's columns past np are read, their scores masked to -inf (whatever the keys)
+  // and their weights 0: the values there must be finite (0 * NaN is NaN), the buffers are not
+  // initialised
+  const int64_t np = plen + per, end = (np + VW - 1) / VW * VW;
+  for (int c = 0; c < D; ++c)
+    for (int64_t t = np; t < end; ++t) pv[c * Pc + t] = 0.f;
+  return np;
 }
 
 template <int D>
