@@ -28,7 +28,6 @@ from lhf_hf.utils.native_build import (  # noqa: F401 (this module's API before 
     private_cache_dir,
     target_march,
 )
-from lhf_hf.utils.native_build import verified as _verified
 from lhf_hf.utils.native_run import run_pieces
 
 SOURCE = Path(__file__).parent / "kernels" / "ppo_update.cpp"
@@ -84,11 +83,7 @@ def build(hidden: int = 64) -> Path:
 
 @functools.cache
 def load(hidden: int = 64) -> ctypes.CDLL:
-    path = build(hidden)
-    if not _verified(path):  # changed since this process built or checked it: check again
-        build.cache_clear()
-        path = build(hidden)
-    lib = ctypes.CDLL(str(path))
+    lib = native_build.open_verified(build, hidden)
     if lib.lhf_abi_version() != ABI_VERSION or lib.lhf_hidden() != hidden:
         raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI or hidden width)")
     lib.lhf_ppo_update.argtypes = [ctypes.POINTER(PPOArgs), ctypes.c_int64, ctypes.c_int64]

@@ -82,11 +82,7 @@ def build() -> Path:
 
 @functools.cache
 def load() -> ctypes.CDLL:
-    path = build()
-    if not native_build.verified(path):  # changed since this process built or checked it
-        build.cache_clear()
-        path = build()
-    lib = ctypes.CDLL(str(path))
+    lib = native_build.open_verified(build)
     if lib.lhf_attn_abi_version() != ABI_VERSION:
         raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI)")
     for fn in (lib.lhf_attn_forward, lib.lhf_attn_backward):

@@ -81,11 +81,7 @@ def build() -> Path:
 
 @functools.cache
 def load() -> ctypes.CDLL:
-    path = build()
-    if not native_build.verified(path):  # changed since this process built or checked it
-        build.cache_clear()
-        path = build()
-    lib = ctypes.CDLL(str(path))
+    lib = native_build.open_verified(build)
     if lib.lhf_tree_abi_version() != ABI_VERSION:
         raise KernelUnavailable(f"{lib._name} does not match this lhf_hf (ABI)")
     lib.lhf_tree_forward.argtypes = [ctypes.POINTER(TreeArgs), ctypes.c_int64, ctypes.c_int64]

@@ -15,6 +15,7 @@ a library's code, and a truncated one kills the process).  No compiler, or a fai
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import logging
 import os
@@ -81,6 +82,16 @@ def native_target(cxx: str, march: str = "native") -> str:
         [cxx, f"-march={march}", "-Q", "--help=target"], capture_output=True, text=True
     )
     return proc.stdout
+
+
+def open_verified(build: Callable[..., Path], *args) -> ctypes.CDLL:
+    """Load the library the cached ``build(*args)`` returns; a copy whose bytes changed since this
+    process built or checked it (``verified``) is built again first."""
+    path = build(*args)
+    if not verified(path):
+        build.cache_clear()
+        path = build(*args)
+    return ctypes.CDLL(str(path))
 
 
 def verified(lib: Path) -> bool:

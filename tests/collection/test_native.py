@@ -11,6 +11,7 @@ import torch
 from lhf_hf.collection import native
 from lhf_hf.collection.batched_ppo import StackedPolicy, make_optimizer
 from lhf_hf.collection.ppo_backends import ppo_update
+from lhf_hf.utils import native_build
 
 from .rollouts import random_rollout
 
@@ -55,18 +56,18 @@ def test_the_kernel_cache_loads_only_what_it_built(tmp_path, monkeypatch):
             path.write_bytes(bad)
             native.build.cache_clear()
             assert native.build(64) == path and path.read_bytes() != bad
-            assert native._verified(path)
+            assert native_build.verified(path)
         path.with_name(path.name + ".sha256").unlink()  # no record: not trusted either
         native.build.cache_clear()
         native.build(64)
-        assert native._verified(path)
+        assert native_build.verified(path)
         # another CPU (another expansion of -march=native) is another library
         monkeypatch.setattr(
             native, "_native_target", lambda cxx, march="native": "-march=znver3 -mno-avx512f"
         )
         native.build.cache_clear()
         other = native.build(64)
-        assert other != path and native._verified(other)
+        assert other != path and native_build.verified(other)
         cache.chmod(0o777)  # anyone could plant a library: refused, with the fix in the message
         native.build.cache_clear()
         with pytest.raises(native.KernelUnavailable, match="is not private .*chmod 700"):
