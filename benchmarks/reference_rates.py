@@ -1,13 +1,14 @@
 """The reference rates of ``lhf reproduce --estimate``, from finished stages on this machine.
 
-    python benchmarks/reference_rates.py WORK [WORK ...] [--out lhf_hf/reproduce/rates.json] [--merge]
+    python benchmarks/reference_rates.py WORK [WORK ...] [--out lhf_hf/reproduce/rates.json] [--merge | --replace]
 
 Reads every ``stage.json`` under the given stage caches that recorded its cost and ran on this
 CPU model (``estimate.measured``), and writes the seconds over units of each key, with the units and
 stages behind it, as this machine's table in ``--out``; the tables of other machines there are kept
 (``--estimate`` takes this CPU model's table first, ``estimate.reference_rates``).  ``--merge`` adds
 the stages to this machine's table instead of replacing it (a rate measured in both is pooled,
-weighed by its units).  The shipped table was made from ``benchmarks/calibration/*.yaml``
+weighed by its units); ``--replace`` keeps this machine's table but for the keys measured here,
+whose rates these stages replace (a re-calibration of some kinds of stage).  The shipped table was made from ``benchmarks/calibration/*.yaml``
 (BENCHMARKS.md names the commands).
 """
 
@@ -58,7 +59,11 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("work", nargs="+", help="stage caches (lhf reproduce --work)")
     p.add_argument("--out", default=str(REFERENCE))
-    p.add_argument("--merge", action="store_true", help="add to this machine's table in --out")
+    how = p.add_mutually_exclusive_group()
+    how.add_argument("--merge", action="store_true", help="add to this machine's table in --out")
+    how.add_argument(
+        "--replace", action="store_true", help="replace only the keys measured here in that table"
+    )
     a = p.parse_args()
     for w in a.work:
         if not w.strip() or not Path(w).is_dir():
@@ -87,6 +92,10 @@ def main() -> None:
     if a.merge and old is not None:
         rates = merge_rates(old["rates"], rates)
         command = f"{old.get('command', '?')}; then {command} --merge"
+    elif a.replace and old is not None:
+        kept = [r for r in old["rates"] if r["key"] not in found]
+        rates = sorted([*kept, *rates], key=lambda r: r["key"])
+        command = f"{old.get('command', '?')}; then {command} --replace"
     mine = {"cpu": cpu, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "date": time.strftime("%Y-%m-%d"), "command": command, "rates": rates}  # fmt: skip
     # in place of this machine's table, so the first machine (the coverage page's) stays first

@@ -117,7 +117,8 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
     if not isinstance(runs, int) or isinstance(runs, bool):
         raise UserError(f"experiment.runs is {runs!r}, not a number of runs")
     try:
-        return dataclasses.replace(current, runs=runs, **fields)
+        # the current spec's account of its choices names its current settings, not the record's
+        return dataclasses.replace(current, runs=runs, choices={}, **fields)
     except (TypeError, KeyError, AttributeError) as exc:  # a malformed setting's own error
         raise UserError(f"its settings cannot be rebuilt: {exc}") from None
 

@@ -48,7 +48,12 @@ CONFIGS = {
 #: Run r uses seed r and train/test split r; the paper reports 3-5 runs. A larger count is a typo
 #: whose plan (tens of stages per run) would take minutes and gigabytes to build, even to estimate.
 MAX_RUNS = 100
-TOP_KEYS = {"title", "paper_table", "budget", "envs", "objectives", "runs", *CONFIGS}
+TOP_KEYS = {"title", "paper_table", "budget", "choices", "envs", "objectives", "runs", *CONFIGS}
+#: How a spec's setting was chosen (``choices``; docs/reproduce.md): on the validation goals of the
+#: train split, the paper's or the reference code's value, what the budget affords (cost, not
+#: return), a design choice measured elsewhere, or on test goals (the goals tables report: said so
+#: that a reader discounts it; tuning belongs on validation goals).
+CHOSEN = ("validation", "paper", "reference", "budget", "design", "test")
 #: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
 #: evaluations (which ``plan_dicp: both`` runs from the same settings)
 PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
@@ -118,6 +123,7 @@ class Experiment:
     paper: dict = field(default_factory=dict)
     paper_table: str = ""
     budget: str = ""
+    choices: dict = field(default_factory=dict)
     narrowed: bool = False
     spec: str = ""
 
@@ -168,6 +174,7 @@ class Experiment:
                     f"{where} must be a mapping of TrainConfig settings, got {settings!r}"
                 )
             _check_keys(where, settings, "train")
+        self._check_choices()
         sweep = self.filter.get("sweep")
         if sweep is not None and (
             not isinstance(sweep, dict) or set(sweep) != {"key", "values"} or not sweep["values"]
@@ -190,6 +197,34 @@ class Experiment:
             )
         for plan in self.dicp_plan_modes():
             self._build("evaluate", lambda p=plan: self.eval_config(0, model="-", out="-", plan=p))
+
+    def _check_choices(self) -> None:
+        if not isinstance(self.choices, dict):
+            raise UserError(f"{self.name}: choices must map settings to how they were chosen")
+        for setting, how in self.choices.items():
+            where = f"{self.name}: choices.{setting}"
+            if not isinstance(how, dict) or set(how) != {"chosen", "evidence"}:
+                raise UserError(f"{where} must be {{chosen: ..., evidence: ...}}, got {how!r}")
+            if how["chosen"] not in CHOSEN:
+                raise UserError(f"{where}.chosen must be one of {CHOSEN}, got {how['chosen']!r}")
+            if not isinstance(how["evidence"], str) or not how["evidence"].strip():
+                raise UserError(f"{where}.evidence must say what shows it (a file or a command)")
+            self.setting(setting, where)
+
+    def setting(self, path: str, where: str = ""):
+        """The value of a dotted setting the spec sets (``train.by_objective.dicp.max_steps``)."""
+        stage, *keys = str(path).split(".")
+        found = getattr(self, stage) if stage in CONFIGS else None
+        for key in keys:
+            if not isinstance(found, dict) or key not in found:
+                raise UserError(
+                    f"{where or path}: the spec sets no {path!r} at this preset (a choice names a "
+                    "setting of collect, filter, train or evaluate that it sets)"
+                )
+            found = found[key]
+        if not keys:
+            raise UserError(f"{where or path}: name a setting, e.g. train.max_steps")
+        return found
 
     def _build(self, stage: str, build) -> None:
         try:

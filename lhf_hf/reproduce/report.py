@@ -122,6 +122,17 @@ def _average(exp: Experiment, column: str, found: list[dict]) -> str:
     return (percent(float(np.mean(ours))) if ours else "-") + paper
 
 
+def _choices(exp: Experiment) -> list[str]:
+    """How the spec's named settings were chosen (``Experiment.choices``)."""
+    if not exp.choices:
+        return []
+    rows = [[f"`{k}`", f"`{exp.setting(k)}`", c["chosen"], c["evidence"]]
+            for k, c in exp.choices.items()]  # fmt: skip
+    return ["", "**How the settings were chosen** (validation: on the train split's validation goals, "
+            "never this table's test goals; budget: by cost, not by return):", "",
+            *_table(["setting", "value", "chosen", "evidence"], rows)]  # fmt: skip
+
+
 def _reading(r: dict) -> str:
     """A verdict line: E, the intervals it rests on, the verdict."""
     row, facts = r["row"], []
@@ -150,6 +161,7 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         f"Paper: {exp.paper_table or '-'}.",
         "",
         f"**Budget** ({exp.preset}): {exp.budget or '-'}",
+        *_choices(exp),
         "",
         "## Relative enhancement E (%) of LHF over each backbone",
         "",

@@ -32,13 +32,18 @@ def test_the_gpu_dicp_spec_is_the_cpu_recipe_trained_three_times_longer(tmp_path
     assert long.runs == 2 and long.objectives == cpu.objectives
 
 
-def test_the_key_to_door_planning_spec_is_a_cell_of_the_planning_spec(tmp_path):
-    # the same stages (hashes): a later run of planning.yaml finds them cached
-    one = plan_stages(
-        load_experiment(str(ROOT / "calibration" / "planning-key-to-door.yaml"), "cpu"), tmp_path
-    )[0]
-    all_ = plan_stages(
-        load_experiment(str(ROOT / "calibration" / "planning.yaml"), "cpu"), tmp_path
-    )[0]
-    k2d = [s.hash for s in all_ if s.label.startswith("dark-key-to-door")]
-    assert [s.hash for s in one] == k2d and len(k2d) == 6
+def test_the_planning_specs_evaluate_the_checkpoints_of_the_gridworlds_spec(tmp_path):
+    # the same collection, filter and training stages (hashes): a run of gridworlds.yaml leaves
+    # the planning specs only their planned evaluations; Key-to-Door's (~40 min) has its own spec
+    def plan(name):
+        return plan_stages(load_experiment(str(ROOT / "calibration" / name), "cpu"), tmp_path)[0]
+
+    grid = {s.hash for s in plan("gridworlds.yaml")}
+    for name, envs in [("planning.yaml", 3), ("planning-key-to-door.yaml", 1)]:
+        stages = plan(name)
+        upstream = [s for s in stages if s.kind != "evaluate"]
+        assert upstream and {s.hash for s in upstream} <= grid
+        planned = [s for s in stages if s.kind == "evaluate"]
+        assert len(planned) == 2 * envs  # baseline and LHF arm per env
+    k2d = [s for s in plan("planning.yaml") if s.label.startswith("dark-key-to-door")]
+    assert not k2d

@@ -64,6 +64,17 @@ def test_this_machine_s_table_is_written_in_place_and_merged(tmp_path):
     _run(tmp_path, out, "--merge")
     (rate,) = json.loads(out.read_text())["machines"][1]["rates"]
     assert rate["seconds_per_unit"] == pytest.approx(0.06) and rate["stages"] == 3
+    kept = {"key": "train|darkroom|ad|paper|window", "seconds_per_unit": 7.0, "stages": 1}
+    mine["rates"].append(kept)
+    out.write_text(json.dumps({"machines": [other, mine]}))
+    _run(tmp_path, out, "--replace")  # the measured key replaced, not pooled; the other kept
+    table = json.loads(out.read_text())["machines"][1]
+    assert table["rates"] == [
+        {"key": "collect|darkroom|batched|ppo", "seconds_per_unit": 0.02, "units": 2000.0,
+         "stages": 2},
+        kept,
+    ]  # fmt: skip
+    assert table["command"].startswith("old; then ") and table["command"].endswith("--replace")
 
 
 @pytest.mark.parametrize(

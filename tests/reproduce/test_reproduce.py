@@ -671,3 +671,44 @@ def test_the_train_stage_is_named_by_the_attention_code_that_trains(tmp_path, mo
         == "torch"
     )
     assert planned_attention_kernel(dataclasses.replace(cfg, attention_kernel="torch")) == "torch"
+
+
+def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
+    """``choices`` names settings the spec sets, each with how it was chosen and the evidence;
+    the report's table shows them with their values.  A choice of a setting the spec does not
+    set, an unknown kind or no evidence is refused at load."""
+    from lhf_hf.reproduce.report import _choices
+
+    spec = json.loads(json.dumps(TINY))
+    spec["presets"]["quick"]["choices"] = {
+        "train.max_steps": {"chosen": "budget", "evidence": "what 2 cores afford"},
+        "collect.histories": {"chosen": "validation", "evidence": "results/x.md"},
+    }
+    exp = load_experiment(_spec(tmp_path, spec), "quick")
+    assert exp.setting("train.max_steps") == 4 and exp.setting("collect.histories") == 4
+    rows = [line for line in _choices(exp) if line.startswith("| `")]
+    assert sorted(rows) == ["| `collect.histories` | `4` | validation | results/x.md |",
+                            "| `train.max_steps` | `4` | budget | what 2 cores afford |"]  # fmt: skip
+    assert _choices(load_experiment(_spec(tmp_path, TINY, "none"), "quick")) == []
+    for choice, message in [
+        ({"train.lr": {"chosen": "budget", "evidence": "x"}}, "the spec sets no 'train.lr'"),
+        ({"train": {"chosen": "budget", "evidence": "x"}}, "name a setting"),
+        ({"model.x": {"chosen": "budget", "evidence": "x"}}, "the spec sets no 'model.x'"),
+        ({"train.max_steps": {"chosen": "luck", "evidence": "x"}}, "chosen must be one of"),
+        ({"train.max_steps": {"chosen": "budget", "evidence": " "}}, "evidence must say"),
+        ({"train.max_steps": "budget"}, r"must be \{chosen: ..., evidence: ...\}"),
+        (["train.max_steps"], "choices must map settings"),
+    ]:
+        spec["presets"]["quick"]["choices"] = choice
+        with pytest.raises(ValueError, match=message):
+            load_experiment(_spec(tmp_path, spec, "bad"), "quick")
+
+
+def test_the_shipped_main_and_noisy_tables_say_how_their_settings_were_chosen():
+    for name in ("darkroom-main", "darkroom-noisy"):
+        exp = load_experiment(name, "cpu")
+        chosen = {k: c["chosen"] for k, c in exp.choices.items()}
+        assert chosen["evaluate.rollouts"] == "validation"
+        assert chosen["train.by_objective.dicp.max_steps"] == "validation"
+        assert exp.setting("train.by_objective.dicp.max_steps") == 4000
+        assert chosen["train.by_objective.dicp.reward_weighting"] == "reference"
