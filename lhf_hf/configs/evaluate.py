@@ -65,6 +65,11 @@ class EvalConfig:
     plan_order: how the beam search ranks depth-0 candidates of equal score: ``sample`` (a
         permutation drawn from the policy, the reference's: with no predicted reward anywhere the
         action is a policy sample) or ``argmax`` (the policy's order).
+    plan_reward_threshold: the beam search imagines a nonzero reward only where the reward head
+        gives it at least this probability, in (0, 1) (gridworld DICP; None: the most likely
+        class, the reference's): the search maximises over hundreds of imagined candidates per
+        step, so the head's rare false positives become frequent ones (a variant of ours,
+        docs/evaluation.md).
     """
 
     model: str
@@ -82,6 +87,7 @@ class EvalConfig:
     rollouts: int = 1
     plan_gate: PlanGate = "always"
     allow_seen: bool = False
+    plan_reward_threshold: float | None = None
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -99,6 +105,16 @@ class EvalConfig:
             raise UserError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
         if self.plan_gate != "always" and not self.plan:
             raise UserError("EvalConfig.plan_gate is a planning setting: pass plan=True (--plan)")
+        if self.plan_reward_threshold is not None:
+            if not self.plan:
+                raise UserError(
+                    "EvalConfig.plan_reward_threshold is a planning setting: pass plan=True (--plan)"
+                )
+            if not 0 < self.plan_reward_threshold < 1:
+                raise UserError(
+                    "EvalConfig.plan_reward_threshold is a probability in (0, 1), got "
+                    f"{self.plan_reward_threshold!r}"
+                )
         if self.plan_dynamics == "oracle" and not self.plan:
             raise UserError(
                 "EvalConfig.plan_dynamics='oracle' is a planning mode: pass plan=True (--plan)"

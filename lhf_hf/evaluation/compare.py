@@ -97,6 +97,7 @@ def _planning(config: dict) -> str:
         *(["gated"] if config.get("plan_gate", "always") != "always" else []),
         *(["true dynamics"] if config.get("plan_dynamics", "model") != "model" else []),
         *(["argmax order"] if config.get("plan_order", "sample") != "sample" else []),
+        *([f"reward p >= {t:g}"] if (t := config.get("plan_reward_threshold")) else []),
     ]
     return " + plan" + "".join(f", {h}" for h in how)
 
@@ -135,7 +136,8 @@ def _tasks_key(r: dict) -> tuple:
 # what results written before a setting existed ran with).  Rollouts change the spread of a run's
 # curve, not its expectation, but a table's error bars must come from one protocol.
 _SETTINGS = {"rollouts": 1}
-_PLAN_SETTINGS = {"plan_gate": "always", "plan_dynamics": "model", "plan_order": "sample"}
+_PLAN_SETTINGS = {"plan_gate": "always", "plan_dynamics": "model", "plan_order": "sample",
+                  "plan_reward_threshold": None}  # fmt: skip
 
 
 def _settings(r: dict) -> tuple:

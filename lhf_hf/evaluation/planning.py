@@ -40,6 +40,27 @@ def depth_tokens(actions: int, horizon: int, beams: int) -> list[int]:
     return out
 
 
+def imagined_reward(model, dyn: dict, threshold: float | None = None) -> torch.Tensor:
+    """(B, N) the reward the search imagines for its candidates: the reward head's most likely
+    class (the reference's), or with ``threshold`` a nonzero class only where the head gives it at
+    least that probability, else the zero-reward class.  The search maximises over hundreds of
+    candidates per step, so a head right on 99.9 % of them still hands it a phantom reward most
+    steps (results/planning/dicp_convergence): a threshold is a variant of ours, its own row."""
+    if threshold is None:
+        return dyn["reward_pred"]
+    logits, values = dyn.get("reward_logits"), model.config.reward_values
+    if logits is None or not values or 0 not in values:
+        raise UserError(
+            "a reward threshold needs a reward head over reward classes that include 0 (a "
+            "gridworld DICP); this model's reward head regresses the reward"
+        )
+    p = logits.softmax(-1)  # (B, N, C)
+    best = p.argmax(-1)  # (B, N)
+    v = torch.tensor(values, dtype=torch.float32)  # (C,)
+    unsure = (v[best] != 0) & (p.gather(-1, best[..., None])[..., 0] < threshold)
+    return v[torch.where(unsure, values.index(0), best)]
+
+
 def _rank_candidates(score: torch.Tensor, policy_rank: torch.Tensor, keep: int) -> torch.Tensor:
     """Indices (B, keep) of the best candidates by score; ties by ``policy_rank`` (lower first),
     then by position.  score, policy_rank: (B, N)."""
@@ -61,6 +82,7 @@ def beam_search(
     generator: torch.Generator | None = None,
     trace: list | None = None,
     engine: str = "auto",
+    reward_threshold: float | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
@@ -79,6 +101,8 @@ def beam_search(
     engine: the backbone over the tree (``tree.py``): ``auto`` (the C++ tree attention kernel where
         the model allows it), ``kernel`` (that, or an error saying why not) or ``torch`` (the
         reference: ``LlamaModel.forward`` with a tree mask).
+    reward_threshold: imagine a nonzero reward only where the head gives it at least this
+        probability (``imagined_reward``; None: the most likely class, the reference's).
     """
     if order not in ("sample", "argmax"):
         raise UserError(f"order must be 'sample' or 'argmax', got {order!r}")
@@ -119,7 +143,7 @@ def beam_search(
         from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
         if dynamics is None:
             dyn = model.dynamics(hidden[:, :, per_beam - A :].reshape(B, nb * A, -1))
-            r_hat = dyn["reward_pred"]  # (B, nb * A)
+            r_hat = imagined_reward(model, dyn, reward_threshold)  # (B, nb * A)
             s_hat = model.predicted_next_states(dyn)  # (B, nb * A, S)
         else:
             nxt, rew = dynamics(from_states.numpy(), acts.reshape(B, nb * A).numpy())

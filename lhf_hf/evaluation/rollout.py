@@ -76,6 +76,7 @@ def rollout(
     plan_order: str = "sample",
     plan_gate: str = "always",
     plan_engine: str = "auto",
+    plan_reward_threshold: float | None = None,
 ) -> RolloutResult:
     """Run ``episodes`` episodes of every task of ``tasks`` (a task batch) in context.
 
@@ -90,7 +91,9 @@ def rollout(
     the others act on a policy sample: without an observed reward a predicted one can only be a
     false positive of the learned head, which the search would follow; docs/evaluation.md);
     ``plan_engine``: the planner's backbone over its tree (``tree.py``), ``auto`` (the C++ tree
-    attention kernel where the model allows it), ``kernel`` or ``torch`` (the reference)."""
+    attention kernel where the model allows it), ``kernel`` or ``torch`` (the reference);
+    ``plan_reward_threshold``: the beam search imagines a nonzero reward only at this probability
+    or more (``planning.imagined_reward``; None: the reference's most likely class)."""
     c = model.config
     model.eval()
     dicp = c.objective == "dicp"
@@ -115,6 +118,11 @@ def rollout(
     tokens = StepTokens(model)
     # read once: a transformers config attribute costs ~2 us per access
     K, discrete = c.context_length, c.discrete_actions
+    if plan and plan_reward_threshold is not None and not discrete:
+        raise UserError(
+            "a planning reward threshold applies to the beam search of discrete actions; this "
+            "model's actions are continuous (greedy search over a regressed reward)"
+        )
     horizon, beams = c.plan_horizon, c.plan_beams
     H = tasks.horizon
     returns, success, taken = [], [], []
@@ -151,6 +159,7 @@ def rollout(
                     order=plan_order,
                     generator=plan_gen,
                     engine=plan_engine,
+                    reward_threshold=plan_reward_threshold,
                 )
                 action = action.numpy()
                 if plan_gate == "reward_seen":

@@ -56,7 +56,7 @@ TOP_KEYS = {"title", "paper_table", "budget", "choices", "envs", "objectives", "
 CHOSEN = ("validation", "paper", "reference", "budget", "design", "test")
 #: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
 #: evaluations (which ``plan_dicp: both`` runs from the same settings)
-PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate")
+PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate", "plan_reward_threshold")
 #: How a DICP model is evaluated (``evaluate.plan_dicp``, one evaluation stage each): ``none``
 #: without planning, ``plan`` with the spec's planning settings (the reference planner unless the
 #: spec sets a variant), ``gated`` with planning gated on a seen reward (a variant of ours).

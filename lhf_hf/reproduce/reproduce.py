@@ -136,6 +136,8 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                     for plan in exp.dicp_plan_modes() if obj == "dicp" else ("none",):
                         eval_cfg = exp.eval_config(run, model="", out="", plan=plan)
                         ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
+                        if ec["plan_reward_threshold"] is None:  # the hash from before the field
+                            del ec["plan_reward_threshold"]
                         ec["model"] = tr.hash
 
                         def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:

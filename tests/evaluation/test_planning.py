@@ -395,3 +395,54 @@ def test_tied_rewards_make_the_planned_action_a_policy_sample():
     assert [d["actions"].shape for d in trace] == [(1, 5), (1, 25), (1, 50)]
     assert trace[0]["states"].shape == (1, 5, 2) and (trace[0]["states"] == [4, 4]).all()
     assert all((d["reward"] == 0).all() for d in trace)  # class 0 everywhere
+
+
+def test_a_reward_threshold_imagines_only_confident_rewards():
+    """Reward classes [0, 1]: the reference imagines the most likely class; with a threshold a
+    reward of 1 only where its probability reaches it (hand-computed softmax)."""
+    from lhf_hf.evaluation.planning import imagined_reward
+
+    model = _dicp_model(1, 4)
+    assert model.config.reward_values == [0.0, 1.0]
+    # logit gaps 0, ln 3 and ln 19: p(reward 1) = 0.5, 0.75, 0.95
+    gap = torch.tensor([[-1.0, 0.0, np.log(3), np.log(19)]])  # (B 1, N 4)
+    logits = torch.stack([torch.zeros_like(gap), gap], -1)  # (1, 4, 2)
+    dyn = {"reward_logits": logits, "reward_pred": torch.tensor([[0.0, 0.0, 1.0, 1.0]])}
+    assert imagined_reward(model, dyn).tolist() == [[0.0, 0.0, 1.0, 1.0]]  # argmax (ties: 0)
+    assert imagined_reward(model, dyn, 0.7).tolist() == [[0.0, 0.0, 1.0, 1.0]]
+    assert imagined_reward(model, dyn, 0.9).tolist() == [[0.0, 0.0, 0.0, 1.0]]
+    assert imagined_reward(model, dyn, 0.96).tolist() == [[0.0, 0.0, 0.0, 0.0]]
+    with pytest.raises(ValueError, match="reward classes that include 0"):
+        imagined_reward(model, {"reward_pred": dyn["reward_pred"]}, 0.9)
+
+
+@pytest.mark.slow
+def test_a_threshold_above_the_phantom_s_probability_lets_the_policy_act():
+    """A reward head that gives reward 1 a probability of 0.6 everywhere: the reference planner
+    sees a reward on every path; above 0.6 the planner sees none, so (sampled order) it acts
+    as the policy would; a threshold without planning, or outside (0, 1), is refused."""
+    from lhf_hf.configs import EvalConfig
+    from lhf_hf.evaluation.rollout import rollout
+    from lhf_hf.evaluation.task_batch import make_task_batch
+
+    model = _dicp_model(1, 4)
+    with torch.no_grad():
+        model.reward_head.weight.zero_()
+        model.reward_head.bias.copy_(torch.tensor([0.0, float(np.log(1.5))]))  # p(1) = 0.6
+    ctx = Context(model, mode="cache")
+    g = torch.Generator().manual_seed(0)
+    for _ in range(4):
+        ctx.append(torch.randn(1, 2, model.config.hidden_size, generator=g))
+    logits, state = torch.zeros(1, 5), torch.tensor([[4, 4]])
+    _, score = beam_search(model, ctx, state, logits, 2, 10)
+    assert float(score[0]) == 2.0  # a phantom reward at both depths
+    _, score = beam_search(model, ctx, state, logits, 2, 10, reward_threshold=0.7)
+    assert float(score[0]) == 0.0
+    batch = make_task_batch("darkroom", [3], 0, 0)
+    with pytest.raises(ValueError, match="pass plan=True"):
+        EvalConfig(model="m", out="o", plan_reward_threshold=0.9)
+    for bad in (0.0, 1.0, 1.5):
+        with pytest.raises(ValueError, match=r"a probability in \(0, 1\)"):
+            EvalConfig(model="m", out="o", plan=True, plan_reward_threshold=bad)
+    res = rollout(model, batch, 2, seed=0, plan=True, progress=False, plan_reward_threshold=0.7)
+    assert res.returns.shape == (1, 2)

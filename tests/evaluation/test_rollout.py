@@ -364,6 +364,8 @@ def test_compare_errors(tmp_path):
             compare([a], [str(bad / name)])
     with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, true dynamics'\]"):
         compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle")])  # fmt: skip
+    with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, reward p >= 0.9'\]"):
+        compare([p1], [fake_eval(tmp_path / "p4", "dicp", [1, 2], plan=True, plan_reward_threshold=0.9)])  # fmt: skip
     # planner settings do not matter without planning; the defaults match results written before
     r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],
                 [fake_eval(tmp_path / "n2", "dicp", [2, 2], plan_gate="reward_seen", rollouts=1)])  # fmt: skip
