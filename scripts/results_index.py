@@ -6,7 +6,8 @@ ROOT, cell by cell, our E beside the paper's.
 First the coverage of one preset: every cell of every shipped spec, done or not, with what is left
 to run (``scripts/results_coverage.py``); then per table its command and budget, one row per env x
 arm x backbone with our E (+/- its std over paired runs, and its 95 % confidence interval), the
-paper's E, the verdict (``report.verdict``, or ``judged`` for a table made before it) and the
+paper's E, the minimum detectable E (``detectable_e``: the E that the verdict's test finds with
+80 % power at the spread of the cell's paired differences; an E below it needs more runs), the verdict (``report.verdict``, or ``judged`` for a table made before it) and the
 whole-curve returns without and with LHF.
 Tables written before a field existed show ``-`` there.
 
@@ -22,11 +23,13 @@ import sys
 from pathlib import Path
 from urllib.parse import quote
 
+import numpy as np
 from results_coverage import coverage as cells_of
 from results_coverage import named, render_coverage
 from results_coverage import recorded_number as _num
 
 from lhf_hf.errors import NotFoundError, UserError
+from lhf_hf.evaluation.compare import detectable_difference
 from lhf_hf.reproduce.experiment import PRESETS, shadows_shipped, train_settings
 from lhf_hf.reproduce.report import (
     command_line,
@@ -64,6 +67,20 @@ def judged(e: float | None, std: float | None, ci, diff_ci) -> str:
     return verdict({"E": e, "diff_ci95": diff_ci})
 
 
+def detectable_e(r: dict) -> float | None:
+    """The cell's minimum detectable E (80 % power, the verdict's test): recorded, else from the
+    recorded run means of tables made before it was (None: fewer than 2 paired runs)."""
+    if (mde := _num(r.get("E_mde80"))) is not None:
+        return mde
+    b, f = (r.get(k) for k in ("baseline_run_means", "lhf_run_means"))
+    if not isinstance(b, list) or not isinstance(f, list) or len(b) != len(f) or len(b) < 2:
+        return None
+    b, f = np.asarray(b, float), np.asarray(f, float)
+    if not (np.isfinite(b).all() and np.isfinite(f).all()) or b.mean() == 0:
+        return None
+    return detectable_difference(f - b) / float(b.mean())
+
+
 def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     e, std = _num(r.get("E")), _num(r.get("E_std"))
     lo, hi = _pair(r.get("E_interval95") or r.get("E_ci95")) or (None, None)
@@ -81,7 +98,7 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     return (
         f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
         f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}"
-        f" | {'-' if p is None else f'{p:+.1f}'} | {reading}"
+        f" | {'-' if p is None else f'{p:+.1f}'} | {percent(detectable_e(r))} | {reading}"
         f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
     )
 
@@ -119,8 +136,8 @@ def _table(folder: Path, summary: dict) -> list[str]:
         "",
         "; ".join(facts) + ".",
         "",
-        "| env | backbone | E (%) ± std | 95% CI | paper E (%) | verdict | return without -> with LHF |",
-        "|---|---|---|---|---|---|---|",
+        "| env | backbone | E (%) ± std | 95% CI | paper E (%) | detectable E (%) | verdict | return without -> with LHF |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     rows = 0
     for cell in summary["cells"]:

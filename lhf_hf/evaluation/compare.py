@@ -274,7 +274,7 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             # effect however alike the differences are; with positive baseline returns (the
             # gridworlds' and Meta-World's are >= 0) the difference has the sign of E.
             diff_ci = _t_interval(mf - mb)
-            mde = _detectable(mf - mb)
+            mde = detectable_difference(mf - mb)
         tail = max(1, b.shape[1] // 10)
         rows.append(
             {
@@ -328,7 +328,7 @@ def _ratio_interval(b: np.ndarray, f: np.ndarray) -> list[float]:
     return [float(md / mb - half), float(md / mb + half)]
 
 
-def _detectable(d: np.ndarray) -> float:
+def detectable_difference(d: np.ndarray) -> float:
     """The smallest mean paired difference the verdict's test (two-sided, 5 %) detects with 80 %
     power at the spread of ``d`` (runs,): (t(0.975, n-1) + t(0.8, n-1)) x s_d / sqrt(n).  With
     the baseline's mean it is the minimum detectable E (``E_mde80``): a cell whose effect is below

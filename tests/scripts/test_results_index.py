@@ -43,7 +43,9 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     root = tmp_path / "results"  # the command lines are run from its parent
     root.mkdir()
     _table(root, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
-        _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
+        # paired run means recorded, no E_mde80 (an older table): the detectable E from them
+        _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51, baseline_run_means=[4, 4, 4],
+             lhf_run_means=[5, 6, 7]),
         _row("DICP + plan", -0.1, 0.5),
         # E's interval spans 0 but the paired return differences' excludes it: the latter decides
         _row("DPT", 2.37, 2.66, [-4.6, 11.6], 1.49, 5.04, diff=3.54, diff_ci95=[1.47, 5.61]),
@@ -65,18 +67,21 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     assert "(a-main-cpu/report.md)" not in text
     assert "`lhf reproduce b-noisy --preset cpu --runs 3`; 2.00 h of stage time" in text
     assert (
-        "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | helps | 4.33 -> 9.51 |" in text
+        "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | +77.4 | helps | 4.33 -> 9.51 |"
+        in text
     )
     assert (
-        "| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0 | - | helps "
+        "| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0 | - | - | helps "
         "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
-    assert "| darkroom | DICP | - | - | +19.0 | helps | 0.00 -> 5.04 (difference +5.04" in text
+    assert "| darkroom | DICP | - | - | +19.0 | - | helps | 0.00 -> 5.04 (difference +5.04" in text
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
-    assert "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | no clear effect (\\|E\\|" in text
+    assert (
+        "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | - | no clear effect (\\|E\\|" in text
+    )
     # an arm other than lhf is named; no paper value, one run (no std)
     assert (
-        "| darkroom-large (lam2) | DPT | +5.0 | - | - | not judged (1 paired run, no error bar): the return is higher with LHF |"
+        "| darkroom-large (lam2) | DPT | +5.0 | - | - | - | not judged (1 paired run, no error bar): the return is higher with LHF |"
         in text
     )
     assert "not-a-table" not in text
@@ -145,8 +150,8 @@ def test_index_cells_without_a_finite_e_no_cells_and_odd_names(tmp_path):
     _table(tmp_path, "empty", [], {})
     text, bad = render_index(tmp_path)
     assert bad == []
-    assert "| darkroom | AD | - | - | - | undefined (no finite E) | 0.00 -> 1.00 |" in text
-    assert "| darkroom | DPT | - | - | - | undefined (no finite E) | 4.00 -> 5.00 |" in text
+    assert "| darkroom | AD | - | - | - | - | undefined (no finite E) | 0.00 -> 1.00 |" in text
+    assert "| darkroom | DPT | - | - | - | - | undefined (no finite E) | 4.00 -> 5.00 |" in text
     assert "](one%20run-cpu/report.md)" in text  # a link that works with a space in the name
     assert "No cells: the table compared nothing." in text
 
