@@ -1,6 +1,7 @@
 """The reference rates of ``lhf reproduce --estimate``, from finished stages on this machine.
 
     python benchmarks/reference_rates.py WORK [WORK ...] [--out lhf_hf/reproduce/rates.json] [--merge | --replace]
+        [--only PATTERN ...]
 
 Reads every ``stage.json`` under the given stage caches that recorded its cost and ran on this
 CPU model (``estimate.measured``), and writes the seconds over units of each key, with the units and
@@ -8,7 +9,10 @@ stages behind it, as this machine's table in ``--out``; the tables of other mach
 (``--estimate`` takes this CPU model's table first, ``estimate.reference_rates``).  ``--merge`` adds
 the stages to this machine's table instead of replacing it (a rate measured in both is pooled,
 weighed by its units); ``--replace`` keeps this machine's table but for the keys measured here,
-whose rates these stages replace (a re-calibration of some kinds of stage).  The shipped table was made from ``benchmarks/calibration/*.yaml``
+whose rates these stages replace (a re-calibration of some kinds of stage); ``--only`` takes the
+keys matching these shell patterns only (``'train|*' 'evaluate|*|plan|*'``: a calibration's short
+collections and 1-episode evaluations are mostly start-up, its trainings and planned evaluations
+are not).  The shipped table was made from ``benchmarks/calibration/*.yaml``
 (BENCHMARKS.md names the commands).
 """
 
@@ -17,7 +21,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shlex
 import time
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 from lhf_hf.collection.backend_verdict import cpu_model
@@ -64,6 +70,7 @@ def main() -> None:
     how.add_argument(
         "--replace", action="store_true", help="replace only the keys measured here in that table"
     )
+    p.add_argument("--only", nargs="+", metavar="PATTERN", help="only keys matching these patterns")
     a = p.parse_args()
     for w in a.work:
         if not w.strip() or not Path(w).is_dir():
@@ -83,11 +90,15 @@ def main() -> None:
             f = found.setdefault(key, {"seconds": 0.0, "units": 0.0, "stages": 0})
             for k in f:
                 f[k] += m[k]
+    if a.only:
+        found = {k: f for k, f in found.items() if any(fnmatchcase(k, x) for x in a.only)}
     if not found:
-        raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}")
+        raise SystemExit(f"no finished stage with a recorded cost on {cpu} under {a.work}"
+                         + (f" matching {a.only}" if a.only else ""))  # fmt: skip
     rates = [{"key": k, "seconds_per_unit": f["seconds"] / f["units"], "units": f["units"],
               "stages": f["stages"]} for k, f in sorted(found.items())]  # fmt: skip
     command = "python benchmarks/reference_rates.py " + " ".join(a.work)
+    command += " --only " + " ".join(shlex.quote(x) for x in a.only) if a.only else ""
     old = next((m for m in machines if m.get("cpu") == cpu), None)
     if a.merge and old is not None:
         rates = merge_rates(old["rates"], rates)

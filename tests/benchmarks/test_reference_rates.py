@@ -75,6 +75,13 @@ def test_this_machine_s_table_is_written_in_place_and_merged(tmp_path):
         kept,
     ]  # fmt: skip
     assert table["command"].startswith("old; then ") and table["command"].endswith("--replace")
+    # --only: the keys matching a pattern (none here: nothing to write, the table untouched)
+    before = out.read_text()
+    with pytest.raises(SystemExit, match=r"matching \['train\|\*'\]"):
+        _run(tmp_path, out, "--replace", "--only", "train|*")
+    assert out.read_text() == before
+    _run(tmp_path, out, "--replace", "--only", "collect|*")
+    assert json.loads(out.read_text())["machines"][1]["command"].endswith("--only 'collect|*' --replace")
 
 
 @pytest.mark.parametrize(
