@@ -212,14 +212,18 @@ class Experiment:
             self.setting(setting, where)
 
     def setting(self, path: str, where: str = ""):
-        """The value of a dotted setting the spec sets (``train.by_objective.dicp.max_steps``)."""
+        """The value of a dotted setting the spec sets (``train.by_objective.dicp.max_steps``), or
+        of ``runs``, ``envs`` or ``objectives``."""
+        if path in ("runs", "envs", "objectives"):
+            return getattr(self, path)
         stage, *keys = str(path).split(".")
         found = getattr(self, stage) if stage in CONFIGS else None
         for key in keys:
             if not isinstance(found, dict) or key not in found:
                 raise UserError(
-                    f"{where or path}: the spec sets no {path!r} at this preset (a choice names a "
-                    "setting of collect, filter, train or evaluate that it sets)"
+                    f"{where or path}: the spec sets no {path!r} at this preset (a choice names "
+                    "runs, envs, objectives or a setting of collect, filter, train or evaluate "
+                    "that it sets)"
                 )
             found = found[key]
         if not keys:

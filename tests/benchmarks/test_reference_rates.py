@@ -81,7 +81,9 @@ def test_this_machine_s_table_is_written_in_place_and_merged(tmp_path):
         _run(tmp_path, out, "--replace", "--only", "train|*")
     assert out.read_text() == before
     _run(tmp_path, out, "--replace", "--only", "collect|*")
-    assert json.loads(out.read_text())["machines"][1]["command"].endswith("--only 'collect|*' --replace")
+    assert json.loads(out.read_text())["machines"][1]["command"].endswith(
+        "--only 'collect|*' --replace"
+    )
 
 
 @pytest.mark.parametrize(

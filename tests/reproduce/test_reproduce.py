@@ -683,11 +683,13 @@ def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
     spec["presets"]["quick"]["choices"] = {
         "train.max_steps": {"chosen": "budget", "evidence": "what 2 cores afford"},
         "collect.histories": {"chosen": "validation", "evidence": "results/x.md"},
+        "runs": {"chosen": "budget", "evidence": "t quantiles"},
     }
     exp = load_experiment(_spec(tmp_path, spec), "quick")
     assert exp.setting("train.max_steps") == 4 and exp.setting("collect.histories") == 4
     rows = [line for line in _choices(exp) if line.startswith("| `")]
     assert sorted(rows) == ["| `collect.histories` | `4` | validation | results/x.md |",
+                            "| `runs` | `2` | budget | t quantiles |",
                             "| `train.max_steps` | `4` | budget | what 2 cores afford |"]  # fmt: skip
     assert _choices(load_experiment(_spec(tmp_path, TINY, "none"), "quick")) == []
     for choice, message in [
