@@ -51,9 +51,7 @@ def test_tasks_and_presets():
     assert len(fit) == 65 and not {12, 17, 27, 36, 45, 61, 64, 68} & set(fit)
     assert CollectConfig("darkroom", tasks="fit:3").tasks == fit[:3]
     assert CollectConfig("darkroom", tasks="validation:8").tasks == [12, 17, 27, 36, 45, 61, 64, 68]
-    with pytest.raises(
-        OutOfRangeError, match="validation part of split 0 has 8 tasks, fewer than 9"
-    ):
+    with pytest.raises(OutOfRangeError, match="validation part of split 0 has 8 tasks, fewer than 9"):
         CollectConfig("darkroom", tasks="validation:9")  # never clipped silently
     assert (
         ppo_preset("dark-key-to-door").n_epochs == 10

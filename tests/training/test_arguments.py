@@ -130,8 +130,7 @@ def test_other_arguments_and_the_flags_reach_the_trainer(small_darkroom, tmp_pat
     assert trainer.lhf_identity["train"]["training_args"] == prov["train"]["training_args"]
     refused = TrainConfig(**{**cfg.to_dict(), "training_args": {"eval_strategy": "steps"}})
     with pytest.raises(
-        UserError,
-        match="TrainConfig.training_args .eval_strategy=.steps..: refused by Trainer: You have set",
+        UserError, match="TrainConfig.training_args .eval_strategy=.steps..: refused by Trainer: You have set"
     ):
         build_trainer(refused)
 

@@ -385,9 +385,7 @@ def test_an_interrupt_during_the_switch_is_held_off(tmp_path, monkeypatch, handl
     real_record = outputs.record_manifest
 
     def record_then_interrupt(*args, **kwargs):
-        signal.raise_signal(
-            signal.SIGINT
-        )  # held within the switch (to this thread: no delivery race)
+        signal.raise_signal(signal.SIGINT)  # held within the switch (to this thread: no delivery race)
         real_record(*args, **kwargs)
 
     monkeypatch.setattr(outputs, "record_manifest", record_then_interrupt)
