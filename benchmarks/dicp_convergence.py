@@ -17,7 +17,8 @@ The runs it reads were made with (split 0; validation goals = split 0's held-out
         --max-steps 12000 --batch-size 64 --lr 3e-3 --reward-weighting data --seed 0 \
         --save-steps 500 --out runs/dicp56/baseline        # snapshots copied at log-spaced steps
     lhf evaluate --model SNAPSHOT --tasks validation --episodes 100 --rollouts 4 --seed 0 \
-        [--plan [--plan-gate reward_seen | --plan-dynamics oracle]] --out EVAL/step-N-MODE
+        [--plan [--plan-gate reward_seen | --plan-dynamics oracle | --plan-reward-threshold P]] \
+        --out EVAL/step-N-MODE          # MODE: policy, plan, gated, oracle, threshold90, threshold99
 
 then::
 
@@ -41,6 +42,8 @@ MODES = {
     "policy": "DICP (policy alone)",
     "plan": "DICP + plan (reference)",
     "gated": "DICP + plan, gated on a seen reward (ours)",
+    "threshold90": "DICP + plan, reward p >= 0.9 (ours)",
+    "threshold99": "DICP + plan, reward p >= 0.99 (ours)",
     "oracle": "planner with the true dynamics",
 }
 LEVELS = {"AD (DICP paper)": 12.5, "DICP + plan (DICP paper)": 15.0}

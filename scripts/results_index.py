@@ -223,7 +223,9 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "
         "are). A table that recorded no differences is judged on E's interval, and one that recorded "
-        "no interval on |E| against its std."
+        "no interval on |E| against its std. The detectable E is the smallest E the verdict's test "
+        "finds with 80% power at the spread of the cell's paired differences: an effect below it "
+        "needs more runs before a verdict can show it (`-` with fewer than 2 paired runs)."
         + (
             ""
             if where.name == "results"

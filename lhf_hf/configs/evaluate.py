@@ -66,8 +66,8 @@ class EvalConfig:
         permutation drawn from the policy, the reference's: with no predicted reward anywhere the
         action is a policy sample) or ``argmax`` (the policy's order).
     plan_reward_threshold: the beam search imagines a nonzero reward only where the reward head
-        gives it at least this probability, in (0, 1) (gridworld DICP; None: the most likely
-        class, the reference's): the search maximises over hundreds of imagined candidates per
+        gives it at least this probability, in (0, 1) (gridworld DICP; unset, the default: the
+        most likely class, the reference's): the search maximises over hundreds of imagined candidates per
         step, so the head's rare false positives become frequent ones (a variant of ours,
         docs/evaluation.md).
     """
@@ -108,7 +108,13 @@ class EvalConfig:
         if self.plan_reward_threshold is not None:
             if not self.plan:
                 raise UserError(
-                    "EvalConfig.plan_reward_threshold is a planning setting: pass plan=True (--plan)"
+                    "EvalConfig.plan_reward_threshold (--plan-reward-threshold) is a planning "
+                    "setting: pass plan=True (--plan)"
+                )
+            if self.plan_dynamics != "model":
+                raise UserError(
+                    "EvalConfig.plan_reward_threshold (--plan-reward-threshold) thresholds the "
+                    "learned reward head; the true dynamics (--plan-dynamics oracle) have none"
                 )
             if not 0 < self.plan_reward_threshold < 1:
                 raise UserError(

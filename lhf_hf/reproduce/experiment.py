@@ -200,7 +200,10 @@ class Experiment:
 
     def _check_choices(self) -> None:
         if not isinstance(self.choices, dict):
-            raise UserError(f"{self.name}: choices must map settings to how they were chosen")
+            raise UserError(
+                f"{self.name}: choices must map settings to how they were chosen, got a "
+                f"{type(self.choices).__name__}"
+            )
         for setting, how in self.choices.items():
             where = f"{self.name}: choices.{setting}"
             if not isinstance(how, dict) or set(how) != {"chosen", "evidence"}:
@@ -208,7 +211,10 @@ class Experiment:
             if how["chosen"] not in CHOSEN:
                 raise UserError(f"{where}.chosen must be one of {CHOSEN}, got {how['chosen']!r}")
             if not isinstance(how["evidence"], str) or not how["evidence"].strip():
-                raise UserError(f"{where}.evidence must say what shows it (a file or a command)")
+                raise UserError(
+                    f"{where}.evidence must be a text saying what shows it (a file or a command), "
+                    f"got {how['evidence']!r}"
+                )
             self.setting(setting, where)
 
     def setting(self, path: str, where: str = ""):
@@ -395,6 +401,10 @@ def load_experiment(
             what = "a mapping of settings" if kind is dict else f"a list, e.g. [{merged[key]}]"
             raise UserError(f"{path}: {key} must be {what}")
     if runs is not None:
+        if int(runs) != merged.get("runs", Experiment.runs) and isinstance(
+            merged.get("choices"), dict
+        ):
+            merged["choices"].pop("runs", None)  # the spec's reason is for its own count
         merged["runs"] = int(runs)
     shipped = path.resolve() == (EXPERIMENTS_DIR / f"{path.stem}.yaml").resolve()
     exp = Experiment(
@@ -416,4 +426,9 @@ def load_experiment(
             f"choose among {list(exp.objectives)}"
         )
     keep = tuple(o for o in exp.objectives if o in objectives)  # the spec's order
-    return dataclasses.replace(exp, objectives=keep, narrowed=True)
+    # the choices of the backbones left out (and of the grid itself) do not describe this table
+    dropped = {f"train.by_objective.{o}." for o in exp.objectives if o not in keep}
+    dropped |= set() if "dicp" in keep else {"evaluate.plan_dicp"}
+    choices = {k: c for k, c in exp.choices.items() if k != "objectives"
+               and not any(k.startswith(d) or k == d for d in dropped)}  # fmt: skip
+    return dataclasses.replace(exp, objectives=keep, narrowed=True, choices=choices)

@@ -126,10 +126,16 @@ def _choices(exp: Experiment) -> list[str]:
     """How the spec's named settings were chosen (``Experiment.choices``)."""
     if not exp.choices:
         return []
-    rows = [[f"`{k}`", f"`{exp.setting(k)}`", c["chosen"], c["evidence"]]
-            for k, c in exp.choices.items()]  # fmt: skip
-    return ["", "**How the settings were chosen** (validation: on the train split's validation goals, "
-            "never this table's test goals; budget: by cost, not by return):", "",
+
+    def cell(x) -> str:  # a pipe would end the table's cell
+        return str(x).replace("|", "\\|")
+
+    rows = [[f"`{k}`", f"`{cell(exp.setting(k))}`", f"**{c['chosen']}**" if c["chosen"] == "test"
+             else c["chosen"], cell(c["evidence"])] for k, c in exp.choices.items()]  # fmt: skip
+    legend = ("validation: on the train split's validation goals, never this table's test goals; "
+              "paper / reference: the paper's or the reference code's value; budget: by cost, not "
+              "by return; design: measured elsewhere; **test**: on test goals, to be discounted")  # fmt: skip
+    return ["", f"**How the settings were chosen** ({legend}):", "",
             *_table(["setting", "value", "chosen", "evidence"], rows)]  # fmt: skip
 
 
@@ -165,8 +171,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         "",
         "## Relative enhancement E (%) of LHF over each backbone",
         "",
-        "E = (mean return over the whole test curve with LHF - without) / without, averaged over "
-        "runs; ± is the sample std of the per-run E over paired runs (same seed and split); the paper's "
+        "E = (whole-curve mean return with LHF - without) / without, the returns averaged over "
+        "the runs; ± is the sample std of the per-run E over paired runs (same seed and split); the paper's "
         "in parentheses. The verdicts judge on the paired t-test of the runs' return differences "
         "(LHF - baseline): an effect counts when their 95% interval excludes 0 (docs/reproduce.md).",
     ]

@@ -441,6 +441,8 @@ def test_a_threshold_above_the_phantom_s_probability_lets_the_policy_act():
     batch = make_task_batch("darkroom", [3], 0, 0)
     with pytest.raises(ValueError, match="pass plan=True"):
         EvalConfig(model="m", out="o", plan_reward_threshold=0.9)
+    with pytest.raises(ValueError, match="the true dynamics .* have none"):
+        EvalConfig(model="m", out="o", plan=True, plan_dynamics="oracle", plan_reward_threshold=0.9)
     for bad in (0.0, 1.0, 1.5):
         with pytest.raises(ValueError, match=r"a probability in \(0, 1\)"):
             EvalConfig(model="m", out="o", plan=True, plan_reward_threshold=bad)

@@ -692,14 +692,23 @@ def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
                             "| `runs` | `2` | budget | t quantiles |",
                             "| `train.max_steps` | `4` | budget | what 2 cores afford |"]  # fmt: skip
     assert _choices(load_experiment(_spec(tmp_path, TINY, "none"), "quick")) == []
+    # --runs another count: the spec's reason for its count no longer applies; a pipe is escaped
+    spec["presets"]["quick"]["choices"]["collect.histories"]["evidence"] = "a | b"
+    path = _spec(tmp_path, spec, "piped")
+    assert "runs" in load_experiment(path, "quick", runs=2).choices
+    assert "runs" not in load_experiment(path, "quick", runs=5).choices
+    assert "| `collect.histories` | `4` | validation | a \\| b |" in _choices(
+        load_experiment(path, "quick")
+    )
     for choice, message in [
         ({"train.lr": {"chosen": "budget", "evidence": "x"}}, "the spec sets no 'train.lr'"),
         ({"train": {"chosen": "budget", "evidence": "x"}}, "name a setting"),
         ({"model.x": {"chosen": "budget", "evidence": "x"}}, "the spec sets no 'model.x'"),
         ({"train.max_steps": {"chosen": "luck", "evidence": "x"}}, "chosen must be one of"),
-        ({"train.max_steps": {"chosen": "budget", "evidence": " "}}, "evidence must say"),
+        ({"train.max_steps": {"chosen": "budget", "evidence": " "}}, "evidence must be a text"),
+        ({"train.max_steps": {"chosen": "budget", "evidence": 42}}, "got 42"),
         ({"train.max_steps": "budget"}, r"must be \{chosen: ..., evidence: ...\}"),
-        (["train.max_steps"], "choices must map settings"),
+        (["train.max_steps"], "choices must map settings .* got a list"),
     ]:
         spec["presets"]["quick"]["choices"] = choice
         with pytest.raises(ValueError, match=message):
@@ -714,3 +723,6 @@ def test_the_shipped_main_and_noisy_tables_say_how_their_settings_were_chosen():
         assert chosen["train.by_objective.dicp.max_steps"] == "validation"
         assert exp.setting("train.by_objective.dicp.max_steps") == 4000
         assert chosen["train.by_objective.dicp.reward_weighting"] == "reference"
+        # narrowed to AD and DPT: DICP's choices describe no cell of that table
+        narrowed = load_experiment(name, "cpu", objectives=["ad", "dpt"]).choices
+        assert "evaluate.rollouts" in narrowed and not [k for k in narrowed if "dicp" in k]
