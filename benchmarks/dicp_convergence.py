@@ -18,7 +18,8 @@ The runs it reads were made with (split 0; validation goals = split 0's held-out
         --save-steps 500 --out runs/dicp56/baseline        # snapshots copied at log-spaced steps
     lhf evaluate --model SNAPSHOT --tasks validation --episodes 100 --rollouts 4 --seed 0 \
         [--plan [--plan-gate reward_seen | --plan-dynamics oracle | --plan-reward-threshold P]] \
-        --out EVAL/step-N-MODE          # MODE: policy, plan, gated, oracle, threshold90, threshold99
+        --out EVAL/step-N-MODE          # MODE: policy, plan, gated, oracle, threshold90, threshold99,
+        #   gatedthreshold99 (both)
 
 then::
 
@@ -44,6 +45,7 @@ MODES = {
     "gated": "DICP + plan, gated on a seen reward (ours)",
     "threshold90": "DICP + plan, reward p >= 0.9 (ours)",
     "threshold99": "DICP + plan, reward p >= 0.99 (ours)",
+    "gatedthreshold99": "DICP + plan, gated, reward p >= 0.99 (ours)",
     "oracle": "planner with the true dynamics",
 }
 LEVELS = {"AD (DICP paper)": 12.5, "DICP + plan (DICP paper)": 15.0}
