@@ -245,7 +245,9 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         raise UserError(f"the runs have different numbers of episodes {sorted(episodes)}")
     if set(base) != set(filt):
         raise UserError(
-            f"backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs"
+            f"backbones differ between baseline {sorted(base)} and LHF {sorted(filt)} runs (a row "
+            "is a backbone and how it was evaluated: a planner setting after '+ plan' is its own "
+            "row; evaluate both sides with the same settings)"
         )
     _check_comparable(runs, base, filt)
     env_id = next(iter(envs))
