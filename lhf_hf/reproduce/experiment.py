@@ -427,8 +427,7 @@ def load_experiment(
         )
     keep = tuple(o for o in exp.objectives if o in objectives)  # the spec's order
     # the choices of the backbones left out (and of the grid itself) do not describe this table
-    dropped = {f"train.by_objective.{o}." for o in exp.objectives if o not in keep}
-    dropped |= set() if "dicp" in keep else {"evaluate.plan_dicp"}
-    choices = {k: c for k, c in exp.choices.items() if k != "objectives"
-               and not any(k.startswith(d) or k == d for d in dropped)}  # fmt: skip
+    moot = ("objectives", *(f"train.by_objective.{o}." for o in exp.objectives if o not in keep))
+    moot += () if "dicp" in keep else ("evaluate.plan_dicp",)
+    choices = {k: c for k, c in exp.choices.items() if not k.startswith(moot)}
     return dataclasses.replace(exp, objectives=keep, narrowed=True, choices=choices)
