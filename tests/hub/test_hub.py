@@ -10,6 +10,7 @@ import os
 import shutil
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -40,6 +41,22 @@ def _fails(proc: subprocess.CompletedProcess, *needles: str) -> str:
     for n in needles:
         assert n in proc.stderr, f"{n!r} not in:\n{proc.stderr[-3000:]}"
     return proc.stderr
+
+
+def _interrupt_and_wait(pid: int, deadline_s: float = 60.0) -> None:
+    """Ctrl-C the client, then hold the server's answer until the client has exited (or 60 s).
+    Answering at once races the signal: a loaded machine could deliver the refusal first, and the
+    client would report the refusal instead of the interrupt."""
+    os.kill(pid, signal.SIGINT)
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        try:  # the client is the test's child: once it exits it stays a zombie until reaped
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (FileNotFoundError, ProcessLookupError):
+            return
+        if state in ("Z", "X"):
+            return
+        time.sleep(0.05)
 
 
 def _last_json(stdout: str) -> dict:
@@ -462,7 +479,7 @@ def test_push_errors(small_darkroom_batched, fake_hub, hub_client, tmp_path):
     # may have reached the server); this fake then refuses the commit, so the repo is unchanged.
     pid_file = tmp_path / "client.pid"
     pid_cli = f"import os\nopen({str(pid_file)!r}, 'w').write(str(os.getpid()))\n{CLI}"
-    fake_hub.on_commit = lambda: os.kill(int(pid_file.read_text()), signal.SIGINT)
+    fake_hub.on_commit = lambda: _interrupt_and_wait(int(pid_file.read_text()))
     fake_hub.fail_commits = 1
     try:
         proc = hub_client(fake_hub.endpoint, pid_cli, "push", ds, "--repo-id", "lhf-test/halted")
