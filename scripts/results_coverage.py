@@ -74,17 +74,23 @@ def _flat(d, prefix: str = "") -> dict[str, object]:
     return out
 
 
+def _mode_names(exp: Experiment, objective: str) -> list[str]:
+    """The names a cell's evaluation modes key its settings by: ``policy``, ``plan``, ``gated``,
+    ``gated:0.99``."""
+    modes = exp.dicp_plan_modes() if objective == "dicp" else ("none",)
+    return [{"none": "policy"}.get(m, m) for m in modes]
+
+
 def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object]:
     """Every setting the stages of one cell run with, defaults included, as flat keys: the
     collection, each filter arm, the backbone's training (``by_objective`` applied) and its
     evaluations (plan-only settings only where DICP plans).  What the stage hashes cover, less
     the upstream hashes and the run's seed and paths, so a default written out is no difference
     and a change of AD's steps or of DICP's planner does not date another backbone's cell."""
+    modes = exp.dicp_plan_modes() if objective == "dicp" else ("none",)
     evaluate = {
-        {"none": "policy"}.get(plan, plan): exp.eval_config(
-            0, model="-", out="-", plan=plan
-        ).to_dict()
-        for plan in (exp.dicp_plan_modes() if objective == "dicp" else ("none",))
+        name: exp.eval_config(0, model="-", out="-", plan=plan).to_dict()
+        for name, plan in zip(_mode_names(exp, objective), modes, strict=True)
     }
     train = exp.train_config(objective, 0, dataset="-", selection=None, out="-").to_dict()
     collect = exp.collect_config(env, 0).to_dict()
@@ -113,6 +119,8 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
         if not isinstance(value, dict):
             raise UserError(f"experiment.{key} is a {type(value).__name__}, not a mapping")
         fields[key] = value
+    if planned_before_ties(summary) and "plan_ties" not in fields["evaluate"]:
+        fields["evaluate"] = {**fields["evaluate"], "plan_ties": "policy"}
     runs = rec.get("runs")
     if not isinstance(runs, int) or isinstance(runs, bool):
         raise UserError(f"experiment.runs is {runs!r}, not a number of runs")
@@ -133,13 +141,23 @@ def differences(recorded: Experiment, current: Experiment, env: str, objective: 
     if "tasks_per_chunk" not in recorded.collect and "tasks_per_chunk" not in current.collect:
         old.pop("collect.tasks_per_chunk", None)
         new.pop("collect.tasks_per_chunk", None)
+    # filter arms and evaluation modes key their settings first; their names may hold dots
+    # ("lam=0.5", "gated:0.99"), so a key's group is the arm or mode it starts with
+    groups = {
+        f"{section}.{name}"
+        for exp in (recorded, current)
+        for section, names in (
+            ("filter", [arm for arm, _ in exp.filter_arms(0)]),
+            ("evaluate", _mode_names(exp, objective)),
+        )
+        for name in names
+    }
     out, said = [], set()
     for k in sorted(set(old) | set(new)):
         if old.get(k) == new.get(k):
             continue
-        section, _, rest = k.partition(".")
-        if section in ("filter", "evaluate"):  # keyed by arm / mode first
-            group = f"{section}.{rest.split('.')[0]}"
+        group = max((g for g in groups if k.startswith(g + ".")), key=len, default=None)
+        if group is not None:
             olds = any(o.startswith(group + ".") for o in old)
             news = any(n.startswith(group + ".") for n in new)
             if olds != news:
@@ -165,14 +183,30 @@ def recorded_number(x) -> float | None:
         return None
 
 
-def named(row: dict, experiment: dict) -> dict:
+#: Tables made before the beam search took the reference's tie order below depth 0 (``plan_ties``,
+#: ``index``) planned with ties broken by the policy, a variant of ours (the outside review of
+#: issue 55 found it): their planned rows are that variant, and their cells are not current.
+PLAN_TIES_SINCE = "2026-12-06T12:00"
+
+
+def planned_before_ties(summary: dict) -> bool:
+    """Whether the table was made before ``PLAN_TIES_SINCE`` (a record without a date: no)."""
+    created = summary.get("created")
+    return isinstance(created, str) and created < PLAN_TIES_SINCE
+
+
+def named(row: dict, summary: dict) -> dict:
     """``row`` with its backbone named as ``evaluation.compare`` names it now: a table whose spec
     gated every planned evaluation (``plan_gate``) recorded its planned rows as ``DICP + plan``,
-    a variant that is not the reference planner, so it is read as ``DICP + plan, gated``."""
-    gate = (experiment.get("evaluate") or {}).get("plan_gate", "always")
-    if gate != "always" and row["backbone"].endswith(" + plan"):
-        return {**row, "backbone": row["backbone"] + ", gated"}
-    return row
+    a variant that is not the reference planner, so it is read as ``DICP + plan, gated``; a table
+    made before ``PLAN_TIES_SINCE`` planned with ties by policy, which its rows then name."""
+    backbone = row["backbone"]
+    gate = (summary.get("experiment", {}).get("evaluate") or {}).get("plan_gate", "always")
+    if gate != "always" and backbone.endswith(" + plan"):
+        backbone += ", gated"
+    if " + plan" in backbone and planned_before_ties(summary) and "ties by" not in backbone:
+        backbone += ", ties by policy"
+    return {**row, "backbone": backbone}
 
 
 def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
@@ -193,7 +227,7 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
             if not isinstance(cell.get("arm"), str):
                 raise UserError(f"a cell has no arm: {str(cell)[:60]}")
             if objective_of(row["backbone"]) == objective:
-                row = named(row, summary.get("experiment") or {})
+                row = named(row, summary)
                 out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
 

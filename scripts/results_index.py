@@ -143,7 +143,7 @@ def _table(folder: Path, summary: dict) -> list[str]:
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
-            lines.append(_row(label, cell["env_id"], named(r, exp), paper))
+            lines.append(_row(label, cell["env_id"], named(r, summary), paper))
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]

@@ -14,6 +14,7 @@ from .types import check_types
 Context = Literal["auto", "cache", "recompute", "window"]
 PlanDynamics = Literal["model", "oracle"]
 PlanOrder = Literal["sample", "argmax"]
+PlanTies = Literal["index", "policy"]
 PlanGate = Literal["always", "reward_seen"]
 CONTEXTS: tuple[str, ...] = get_args(Context)
 #: copies of every task in one batch: beyond this the batch (tasks x rollouts envs) is a mistake
@@ -65,6 +66,12 @@ class EvalConfig:
     plan_order: how the beam search ranks depth-0 candidates of equal score: ``sample`` (a
         permutation drawn from the policy, the reference's: with no predicted reward anywhere the
         action is a policy sample) or ``argmax`` (the policy's order).
+    plan_ties: how the beam search ranks candidates of equal score below depth 0: ``index`` (the
+        reference's: beam by beam in rank order, each beam's actions by index, so with no predicted
+        reward the kept beams all descend from the best first actions and a phantom reward can
+        redirect few paths) or ``policy`` (each beam's actions in the policy's order at the
+        imagined state, interleaved over beams, so every first action stays in the tree; a variant
+        of ours, docs/evaluation.md).
     plan_reward_threshold: the beam search imagines a nonzero reward only where the reward head
         gives it at least this probability, in (0, 1) (gridworld DICP; unset, the default: the
         most likely class, the reference's): the search maximises over hundreds of imagined candidates per
@@ -84,6 +91,7 @@ class EvalConfig:
     overwrite: bool = False
     plan_dynamics: PlanDynamics = "model"
     plan_order: PlanOrder = "sample"
+    plan_ties: PlanTies = "index"
     rollouts: int = 1
     plan_gate: PlanGate = "always"
     allow_seen: bool = False
@@ -103,6 +111,8 @@ class EvalConfig:
             )
         if self.context not in CONTEXTS:
             raise UserError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
+        if self.plan_ties != "index" and not self.plan:
+            raise UserError("EvalConfig.plan_ties is a planning setting: pass plan=True (--plan)")
         if self.plan_gate != "always" and not self.plan:
             raise UserError("EvalConfig.plan_gate is a planning setting: pass plan=True (--plan)")
         if self.plan_reward_threshold is not None:

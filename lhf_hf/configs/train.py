@@ -106,8 +106,8 @@ class TrainConfig:
     reward_weighting: how DICP's reward loss weighs positions: ``data`` (as the histories hold
         them) or ``actions`` (every action alike within each class of the previous step's reward,
         so the reward head learns what the planner asks: the reward of any action, not only of the
-        source's); None = ``actions`` where it applies (DICP, discrete actions, reward classes),
-        else ``data``.  Measured on Darkroom in docs/evaluation.md.
+        source's; a variant of ours, measured on Darkroom in docs/evaluation.md); None = ``data``,
+        the reference's (jaehyeon-son/dicp).
     seed: seeds the model init, dropout and the window sampler (every process gets the same seed).
     save_steps: checkpoint interval (resumable with ``resume``).
     logging_steps: loss log interval.

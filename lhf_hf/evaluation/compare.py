@@ -97,6 +97,7 @@ def _planning(config: dict) -> str:
         *(["gated"] if config.get("plan_gate", "always") != "always" else []),
         *(["true dynamics"] if config.get("plan_dynamics", "model") != "model" else []),
         *(["argmax order"] if config.get("plan_order", "sample") != "sample" else []),
+        *(["ties by policy"] if config.get("plan_ties", "policy") != "index" else []),
         *([f"reward p >= {t:g}"] if (t := config.get("plan_reward_threshold")) else []),
     ]
     return " + plan" + "".join(f", {h}" for h in how)
@@ -137,7 +138,7 @@ def _tasks_key(r: dict) -> tuple:
 # curve, not its expectation, but a table's error bars must come from one protocol.
 _SETTINGS = {"rollouts": 1}
 _PLAN_SETTINGS = {"plan_gate": "always", "plan_dynamics": "model", "plan_order": "sample",
-                  "plan_reward_threshold": None}  # fmt: skip
+                  "plan_reward_threshold": None, "plan_ties": "policy"}  # fmt: skip
 
 
 def _settings(r: dict) -> tuple:

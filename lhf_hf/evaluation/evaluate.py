@@ -57,6 +57,7 @@ def plan_label(cfg: EvalConfig) -> str:
         *(["gated on a seen reward"] if cfg.plan_gate != "always" else []),
         *(["true dynamics"] if cfg.plan_dynamics != "model" else []),
         *(["argmax order"] if cfg.plan_order != "sample" else []),
+        *(["ties by policy"] if cfg.plan_ties != "index" else []),
         *([f"rewards at p >= {cfg.plan_reward_threshold:g}"] if cfg.plan_reward_threshold else []),
     ]
     return " + planning" + (f" ({', '.join(how)})" if how else "")
@@ -138,6 +139,7 @@ def _evaluate_into(cfg: EvalConfig, progress: bool) -> tuple[dict, Path]:
         progress=progress,
         plan_dynamics=cfg.plan_dynamics,
         plan_order=cfg.plan_order,
+        plan_ties=cfg.plan_ties,
         plan_gate=cfg.plan_gate,
         plan_reward_threshold=cfg.plan_reward_threshold,
     )

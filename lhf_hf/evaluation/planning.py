@@ -83,6 +83,7 @@ def beam_search(
     trace: list | None = None,
     engine: str = "auto",
     reward_threshold: float | None = None,
+    ties: str = "index",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First action (B,) of the best imagined path of ``horizon`` steps, and its score (B,).
 
@@ -93,8 +94,15 @@ def beam_search(
         (``BatchedTasks.imagine``): the planner's machinery with perfect dynamics, a diagnostic.
     order: how candidates of equal score are ranked at depth 0: ``sample`` (a permutation drawn
         from the policy with ``generator``, Gumbel-top-k: the reference's, so that when no path
-        predicts a reward the action is a policy sample) or ``argmax`` (the policy's order);
-        deeper depths rank ties by the policy's order at the imagined state.
+        predicts a reward the action is a policy sample) or ``argmax`` (the policy's order).
+    ties: how deeper depths rank candidates of equal score: ``index`` (the reference's
+        ``ad.py``: candidates laid out beam by beam, the beams in rank order, each beam's actions
+        by index, stable-sorted by score; with no reward imagined the kept beams are the first
+        beams' children, so from depth 2 on every path starts with the best first action and a
+        false reward can redirect few of them) or ``policy`` (a variant of ours: each beam's
+        actions in the policy's order at its imagined state, interleaved over the beams, so every
+        first action stays in the tree to the last depth; ~5x more candidates whose phantom reward
+        changes the chosen action, results/planning/dicp_convergence).
     trace: a list that receives, per depth, what the planner imagined: ``{depth, states (B, N, S),
         actions (B, N), reward (B, N), next_state (B, N, S)}`` for its N candidates (numpy), so a
         diagnosis can hold them against the true dynamics.
@@ -106,6 +114,8 @@ def beam_search(
     """
     if order not in ("sample", "argmax"):
         raise UserError(f"order must be 'sample' or 'argmax', got {order!r}")
+    if ties not in ("index", "policy"):
+        raise UserError(f"ties must be 'index' or 'policy', got {ties!r}")
     B, A = logits.shape
     tree = make_tree(
         model, context, beams=min(beams, A ** (horizon - 1)), group=1 + A,
@@ -138,7 +148,7 @@ def beam_search(
         shared = 0 if beam_T is None else 1
         hidden = tree.forward(embeds, offsets, is_query, shared)
         hidden = hidden.view(B, nb, per_beam, -1)
-        if beam_T is not None:  # the policy at the imagined state orders this depth's candidates
+        if beam_T is not None and ties == "policy":  # the policy at the imagined state
             policy = model.action_distribution(hidden[:, :, 0])["action_logits"]  # (B, nb, A)
         from_states = beam_state[:, :, None].expand(B, nb, A, -1).reshape(B, nb * A, -1)
         if dynamics is None:
@@ -165,7 +175,10 @@ def beam_search(
             u = torch.rand(policy.shape, generator=generator).clamp_(1e-20, 1.0)  # permutation
             keys = policy - torch.log(-torch.log(u))  # drawn from the policy without replacement
         rank_in_beam = torch.argsort(torch.argsort(-keys, dim=2, stable=True), dim=2)  # (B, nb, A)
-        policy_rank = (rank_in_beam * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
+        if depth > 0 and ties == "index":  # beam-major, actions by index: the reference's layout
+            policy_rank = torch.arange(nb * A).expand(B, nb * A)
+        else:  # depth 0 (one beam): the sampled or argmax order; `policy`: interleaved over beams
+            policy_rank = (rank_in_beam * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
         first = (
             acts.reshape(B, nb * A) if beam_first is None else beam_first.repeat_interleave(A, 1)
         )

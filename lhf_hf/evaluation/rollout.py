@@ -74,6 +74,7 @@ def rollout(
     engine: str = "auto",
     plan_dynamics: str = "model",
     plan_order: str = "sample",
+    plan_ties: str = "index",
     plan_gate: str = "always",
     plan_engine: str = "auto",
     plan_reward_threshold: float | None = None,
@@ -86,7 +87,8 @@ def rollout(
     ``plan_dynamics``: ``model`` (the learned heads) or ``oracle`` (the environment's own dynamics
     inside the planner, a diagnostic; gridworlds without a key); ``plan_order``: the beam search's
     depth-0 tie order, ``sample`` (drawn from the policy on this rollout's seeded stream, the
-    reference's) or ``argmax``; ``plan_gate``: ``always`` (the reference: plan on every step once the
+    reference's) or ``argmax``; ``plan_ties``: its tie order below depth 0, ``index`` (the
+    reference's) or ``policy`` (ours; ``beam_search``); ``plan_gate``: ``always`` (the reference: plan on every step once the
     context is full) or ``reward_seen`` (plan only for tasks whose context holds a nonzero reward;
     the others act on a policy sample: without an observed reward a predicted one can only be a
     false positive of the learned head, which the search would follow; docs/evaluation.md);
@@ -157,6 +159,7 @@ def rollout(
                     beams,
                     dynamics=tasks.imagine if plan_dynamics == "oracle" else None,
                     order=plan_order,
+                    ties=plan_ties,
                     generator=plan_gen,
                     engine=plan_engine,
                     reward_threshold=plan_reward_threshold,

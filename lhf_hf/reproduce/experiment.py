@@ -56,10 +56,12 @@ TOP_KEYS = {"title", "paper_table", "budget", "choices", "envs", "objectives", "
 CHOSEN = ("validation", "paper", "reference", "budget", "design", "test")
 #: ``EvalConfig`` fields that only apply with ``plan``: a spec's are left out of its model-free
 #: evaluations (which ``plan_dicp: both`` runs from the same settings)
-PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_gate", "plan_reward_threshold")
+PLAN_SETTINGS = ("plan_dynamics", "plan_order", "plan_ties", "plan_gate", "plan_reward_threshold")
 #: How a DICP model is evaluated (``evaluate.plan_dicp``, one evaluation stage each): ``none``
 #: without planning, ``plan`` with the spec's planning settings (the reference planner unless the
 #: spec sets a variant), ``gated`` with planning gated on a seen reward (a variant of ours).
+#: ``plan:P`` / ``gated:P`` add a reward threshold (``plan_reward_threshold`` P, a variant of
+#: ours), so one table holds the reference planner and a thresholded one from the same checkpoints.
 #: ``true`` / ``false`` / ``both`` name ``[plan]`` / ``[none]`` / ``[none, plan]``.
 PLAN_MODES = ("none", "plan", "gated")
 _PLAN_ALIASES = {True: ("plan",), False: ("none",), "both": ("none", "plan")}
@@ -67,6 +69,24 @@ _PLAN_ALIASES = {True: ("plan",), False: ("none",), "both": ("none", "plan")}
 
 def _is_alias(modes) -> bool:
     return isinstance(modes, bool | str) and modes in _PLAN_ALIASES
+
+
+def _split_mode(mode: str) -> tuple[str, float | None]:
+    """``"gated:0.99"`` -> ``("gated", 0.99)``; ``"plan"`` -> ``("plan", None)``."""
+    base, sep, threshold = mode.partition(":")
+    if not sep:
+        return base, None
+    try:
+        return base, float(threshold)
+    except ValueError:
+        return base, float("nan")  # refused by _valid_mode
+
+
+def _valid_mode(mode) -> bool:
+    if not isinstance(mode, str):
+        return False
+    base, p = _split_mode(mode)
+    return base in PLAN_MODES and (p is None or base != "none" and 0 < p < 1)
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -142,20 +162,27 @@ class Experiment:
             _is_alias(modes)
             or isinstance(modes, list)
             and modes
-            and set(modes) <= set(PLAN_MODES)
+            and all(_valid_mode(m) for m in modes)
             and len(set(modes)) == len(modes)
         ):
             raise UserError(
                 f"{name}: evaluate.plan_dicp must be true, false, 'both' or a list of "
-                f"{', '.join(PLAN_MODES)} (each once), got {modes!r}"
+                f"{', '.join(PLAN_MODES)}, plan:P or gated:P (P a reward threshold in (0, 1); "
+                f"each once), got {modes!r}"
             )
+        split = [_split_mode(m) for m in self.dicp_plan_modes()]
         if (
-            "gated" in self.dicp_plan_modes()
+            any(b == "gated" for b, _ in split)
             and self.evaluate.get("plan_gate", "always") != "always"
         ):
             raise UserError(
                 f"{name}: evaluate.plan_gate {self.evaluate['plan_gate']!r} gates every planned "
                 "evaluation: with plan_dicp's 'gated' leave plan_gate out (plan = the reference)"
+            )
+        if any(p is not None for _, p in split) and self.evaluate.get("plan_reward_threshold"):
+            raise UserError(
+                f"{name}: evaluate.plan_reward_threshold applies to every planned evaluation: with "
+                "plan_dicp's MODE:P thresholds leave it out (plan = the reference)"
             )
         for stage in CONFIGS:
             _check_keys(f"{name}: {stage}", getattr(self, stage), stage, STAGE_EXTRAS[stage])
@@ -307,15 +334,18 @@ class Experiment:
         )
 
     def eval_config(self, run: int, *, model: str, out: str, plan: str = "none") -> EvalConfig:
-        """Run ``run``'s evaluation config in plan mode ``plan`` (``PLAN_MODES``)."""
+        """Run ``run``'s evaluation config in plan mode ``plan`` (``PLAN_MODES``, ``MODE:P``)."""
         settings = {k: v for k, v in self.evaluate.items() if k != "plan_dicp"}
-        if plan == "none":  # planning settings belong to the planned evaluations only
+        base, threshold = _split_mode(plan)
+        if base == "none":  # planning settings belong to the planned evaluations only
             settings = {k: v for k, v in settings.items() if k not in PLAN_SETTINGS}
-        elif plan == "gated":
+        if base == "gated":
             settings["plan_gate"] = "reward_seen"
+        if threshold is not None:
+            settings["plan_reward_threshold"] = threshold
         # a stage folder is the cache's own: a half-written evaluation in it is replaced
         return EvalConfig(
-            model=model, out=out, plan=plan != "none", seed=run, overwrite=True, **settings
+            model=model, out=out, plan=base != "none", seed=run, overwrite=True, **settings
         )
 
     def dicp_plan_modes(self) -> tuple[str, ...]:

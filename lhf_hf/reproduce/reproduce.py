@@ -109,6 +109,10 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                         del tc["training_args"]
                     if attention == "torch":
                         del tc["attention_kernel"]
+                    if obj == "dicp" and tc["reward_weighting"] is None:
+                        # unset meant 'actions' before the default became the reference's 'data':
+                        # the resolved value names the stage, so no old model passes for a new one
+                        tc["reward_weighting"] = "data"
                     tc["src"] = data_stage.hash
                     if sel is not None:
                         tc["selection"] = sel.hash
@@ -138,6 +142,8 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                         ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
                         if ec["plan_reward_threshold"] is None:  # the hash from before the field
                             del ec["plan_reward_threshold"]
+                        if not ec["plan"]:  # model-free: the hash from before the field
+                            del ec["plan_ties"]
                         ec["model"] = tr.hash
 
                         def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:

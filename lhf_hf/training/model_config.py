@@ -53,7 +53,7 @@ def model_config_for(spec, cfg: TrainConfig, has_optimal: bool) -> ICRLConfig:
             )
             + ": use 'data'"
         )
-    weighting = cfg.reward_weighting or ("actions" if weighting_applies else "data")
+    weighting = cfg.reward_weighting or "data"  # the reference's plain loss unless asked
     return icrl_config(
         cfg.preset,
         objective=cfg.objective,

@@ -168,10 +168,14 @@ def test_greedy_search_picks_the_candidate_with_the_highest_predicted_reward():
 
 # ---------------------------------------------------------------------------- a real model
 @torch.no_grad()
-def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens, encode=None):
+def naive_beam_search(
+    model, window, state, logits, horizon, beams, max_tokens, encode=None, ties="index"
+):
     """Reference: every candidate re-runs the backbone over its own linear token sequence (the
     context window + its path, cut to the training window, as the reference code does per beam; or
-    ``encode(tokens, last_is_query)``)."""
+    ``encode(tokens, last_is_query)``).  Ties below depth 0: ``index`` lays candidates out beam by
+    beam, actions by index, and sorts stably (jaehyeon-son/dicp ``ad.py``); ``policy`` ranks each
+    beam's actions by its policy, interleaved over beams."""
     A = logits.shape[-1]
 
     def last_hidden(tokens, window_len):
@@ -198,7 +202,9 @@ def naive_beam_search(model, window, state, logits, horizon, beams, max_tokens, 
                 cands.append(
                     dict(
                         score=beam["score"] + r,
-                        key=int(rank[a]) * len(beams_) + bi,
+                        key=bi * A + a
+                        if depth > 0 and ties == "index"
+                        else int(rank[a]) * len(beams_) + bi,
                         beam=beam,
                         a=a,
                         r=r,
@@ -253,8 +259,9 @@ def _dicp_model(layers, context):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("ties", ["index", "policy"])
 @pytest.mark.parametrize("layers, context, steps", [(1, 4, 12), (2, 12, 6)])
-def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps):
+def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps, ties):
     """The shared-context tree (one backbone call per depth) gives the per-candidate recompute's
     choice and score.  One layer with a full window (the oldest context tokens drop out as paths
     grow); two layers while the window is not yet full (keys of deeper layers are not recomputed)."""
@@ -267,9 +274,9 @@ def test_tree_beam_search_equals_per_candidate_recompute(layers, context, steps)
     logits = torch.randn(1, 5, generator=g)
     for horizon, beams in [(1, 10), (3, 10), (4, 2)]:
         want_a, want_score = naive_beam_search(
-            model, ctx.embeds, state[0], logits[0], horizon, beams, ctx.max_tokens
+            model, ctx.embeds, state[0], logits[0], horizon, beams, ctx.max_tokens, ties=ties
         )
-        got_a, got_score = beam_search(model, ctx, state, logits, horizon, beams)
+        got_a, got_score = beam_search(model, ctx, state, logits, horizon, beams, ties=ties)
         assert int(got_a[0]) == want_a, (horizon, beams)
         assert abs(float(got_score[0]) - want_score) < 1e-4, (
             horizon,
@@ -395,6 +402,48 @@ def test_tied_rewards_make_the_planned_action_a_policy_sample():
     assert [d["actions"].shape for d in trace] == [(1, 5), (1, 25), (1, 50)]
     assert trace[0]["states"].shape == (1, 5, 2) and (trace[0]["states"] == [4, 4]).all()
     assert all((d["reward"] == 0).all() for d in trace)  # class 0 everywhere
+
+
+def test_ties_below_depth_0_follow_the_reference_layout_or_the_policy():
+    """No reward anywhere, 10 beams of 5 actions: with the reference's ties (``index``: beam by
+    beam, actions by index, stable sort; jaehyeon-son/dicp ``ad.py``) depth 1 keeps the children
+    of the two best first actions and from depth 2 on every kept path starts with the best one;
+    with ``ties="policy"`` every first action stays in the tree.  Dynamics that write a path's
+    first action into its state show which paths were kept."""
+    from lhf_hf.configs import TrainConfig
+    from lhf_hf.envs import get_spec
+    from lhf_hf.modeling import ICRLModel
+    from lhf_hf.training import model_config_for
+
+    cfg = model_config_for(get_spec("darkroom"), TrainConfig(dataset="-", objective="dicp",
+                           out="-", preset="tiny", context_length=4), True)  # fmt: skip
+    torch.manual_seed(0)
+    model = ICRLModel(cfg).eval()
+    ctx = Context(model, mode="cache")
+    g = torch.Generator().manual_seed(0)
+    for _ in range(4):
+        ctx.append(torch.randn(1, 2, cfg.hidden_size, generator=g))
+
+    def first_action_dynamics(states, actions):  # (B, N, 2), (B, N): (depth, first action)
+        nxt = states.copy()
+        start = states[..., 0] == 0
+        nxt[..., 0] = np.minimum(states[..., 0] + 1, 8)
+        nxt[..., 1] = np.where(start, actions, states[..., 1])
+        return nxt, np.zeros(actions.shape, dtype=np.float32)
+
+    logits = torch.tensor([[0.0, 1.0, 2.0, 0.5, -1.0]])  # argmax order: 2, 1, 3, 0, 4
+    kept = {}
+    for ties in ("index", "policy"):
+        trace: list = []
+        a, score = beam_search(model, ctx, torch.tensor([[0, 0]]), logits, 4, 10,
+                               dynamics=first_action_dynamics, ties=ties, trace=trace)  # fmt: skip
+        assert int(a[0]) == 2 and float(score[0]) == 0.0
+        # the first actions of the paths each depth extends (its candidates' from-states)
+        kept[ties] = [set(d["states"][0, :, 1].tolist()) for d in trace[1:]]  # depth 1, 2, 3
+    assert kept["index"] == [set(range(5)), {2, 1}, {2}]  # the two best, then the best only
+    assert kept["policy"] == [set(range(5))] * 3
+    with pytest.raises(ValueError, match="ties must be"):
+        beam_search(model, ctx, torch.tensor([[0, 0]]), logits, 2, 10, ties="random")
 
 
 def test_a_reward_threshold_imagines_only_confident_rewards():

@@ -344,9 +344,13 @@ def test_compare_errors(tmp_path):
     with pytest.raises(ValueError, match="are the same evaluation run"):
         compare([a, a], [a2, a3])
     # a planning variant is its own row: a gated run is never compared with the reference's
-    p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True)  # written before plan_gate existed
+    p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True, plan_ties="index")
     with pytest.raises(ValueError, match=r"baseline \['DICP \+ plan'\] and LHF \['DICP \+ plan, gated'\]"):  # fmt: skip
-        compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen")])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen", plan_ties="index")])  # fmt: skip
+    # a planned run written before plan_ties existed broke ties by the policy: that variant's row
+    old = fake_eval(tmp_path / "p0", "dicp", [1, 2], plan=True)
+    with pytest.raises(ValueError, match=r"baseline \['DICP \+ plan, ties by policy'\] and LHF \['DICP \+ plan'\]"):  # fmt: skip
+        compare([old], [p1])
     # a damaged or hand-edited result is named, with what is wrong
     bad = tmp_path / "bad"
     for name, text, why in [
@@ -363,9 +367,9 @@ def test_compare_errors(tmp_path):
         with pytest.raises(ValueError, match=f"{name}/eval_results.json: .*{why}"):
             compare([a], [str(bad / name)])
     with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, true dynamics'\]"):
-        compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle")])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle", plan_ties="index")])  # fmt: skip
     with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, reward p >= 0.9'\]"):
-        compare([p1], [fake_eval(tmp_path / "p4", "dicp", [1, 2], plan=True, plan_reward_threshold=0.9)])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p4", "dicp", [1, 2], plan=True, plan_reward_threshold=0.9, plan_ties="index")])  # fmt: skip
     # planner settings do not matter without planning; the defaults match results written before
     r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],
                 [fake_eval(tmp_path / "n2", "dicp", [2, 2], plan_gate="reward_seen", rollouts=1)])  # fmt: skip

@@ -396,9 +396,37 @@ def test_dicp_is_evaluated_per_plan_mode_each_labelled(tmp_path):
         ({"plan_dicp": ["plan", "plan"]}, "each once"),
         ({"plan_dicp": ["sometimes"]}, "a list of none, plan, gated"),
         ({"plan_dicp": ["plan", "gated"], "plan_gate": "reward_seen"}, "leave plan_gate out"),
+        ({"plan_dicp": ["none:0.9"]}, "plan:P or gated:P"),
+        ({"plan_dicp": ["gated:1"]}, "plan:P or gated:P"),
+        ({"plan_dicp": ["gated:high"]}, "plan:P or gated:P"),
+        ({"plan_dicp": ["gated:0.9"], "plan_reward_threshold": 0.5}, "leave it out"),
     ):
         with pytest.raises(UserError, match=match):
             load_experiment(_spec(tmp_path, {**dicp, "evaluate": bad}, "x"))
+
+
+def test_plan_mode_with_a_reward_threshold(tmp_path):
+    """``gated:0.99`` is the gated planner with the reward threshold 0.99: its own stage and row
+    ("DICP + plan, gated, reward p >= 0.99"), beside the reference planner whose config (and so
+    its stage hash) it leaves unchanged; ``plan:0.9`` thresholds without the gate."""
+    dicp = {**TINY, "objectives": ["dicp"], "paper": {"darkroom": {"dicp": 15.2}}}
+    modes = ["none", "plan", "gated", "gated:0.99", "plan:0.9"]
+    five = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": modes}}, "f"))
+    three = load_experiment(_spec(tmp_path, {**dicp, "evaluate": {"plan_dicp": modes[:3]}}, "t"))
+    ev_f = plan_stages(five, tmp_path)[1][("darkroom", "baseline", "dicp")][:5]
+    ev_t = plan_stages(three, tmp_path)[1][("darkroom", "baseline", "dicp")][:3]
+    assert [e.hash for e in ev_f[:3]] == [e.hash for e in ev_t]
+    got = [(e.config["plan"], e.config["plan_gate"], e.config.get("plan_reward_threshold"))
+           for e in ev_f]  # fmt: skip
+    assert got == [
+        (False, "always", None), (True, "always", None), (True, "reward_seen", None),
+        (True, "reward_seen", 0.99), (True, "always", 0.9),
+    ]  # fmt: skip
+    assert [five.column("dicp", m) for m in modes[3:]] == [
+        "DICP + plan, gated, reward p >= 0.99", "DICP + plan, reward p >= 0.9"
+    ]  # fmt: skip
+    assert "DICP + plan, gated, reward p >= 0.99" in ev_f[3].label
+    assert five.eval_config(0, model="m", out="o", plan="none").plan_reward_threshold is None
 
 
 def test_sweep_arms():
@@ -558,7 +586,7 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert {s.hash for s in some} <= set(all_stages)
     trained = [s.config["objective"] for s in some if s.kind == "train"]
     assert trained == ["dicp"] * 6  # 3 runs x (baseline, LHF)
-    assert sum(s.kind == "evaluate" for s in some) == 18  # each without planning, planned, gated
+    assert sum(s.kind == "evaluate" for s in some) == 24  # none, plan, gated, gated:0.99
     assert report_out(dicp) == "results/darkroom-main-cpu-dicp"
     assert report_out(full) == "results/darkroom-main-cpu"
     with pytest.raises(ValueError, match="darkroom-main has no backbone 'bc': choose among"):
@@ -568,7 +596,7 @@ def test_objectives_narrow_the_grid_to_stages_of_the_full_table(tmp_path, capsys
     assert "darkroom-noisy has no backbone 'dicp': choose among ['ad']" in capsys.readouterr().err
     assert main(["reproduce", "darkroom-noisy", "--preset", "cpu", "--objectives", "dicp",
                  "--work", str(work), "--estimate"]) == 0  # fmt: skip
-    assert "1 backbone(s), 30 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 6)
+    assert "1 backbone(s), 36 stages" in capsys.readouterr().out  # 3 x (collect, filter, 2 + 8)
 
 
 @pytest.mark.slow

@@ -16,6 +16,7 @@ from tests.scripts import load_script
 module = load_script("results_coverage")
 coverage, differences = module.coverage, module.differences
 recorded_experiment, render_coverage = module.recorded_experiment, module.render_coverage
+named, PLAN_TIES_SINCE = module.named, module.PLAN_TIES_SINCE
 render_index = load_script("results_index").render_index
 
 
@@ -56,15 +57,30 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     gate["evaluate"]["episodes"] = EvalConfig(model="-", out="-").episodes
     assert diff(gate, "ad") == [] and diff(gate, "dpt") == []
     assert diff(gate, "dicp") == [
-        "evaluate.gated absent (now run)", "evaluate.plan.plan_gate reward_seen (now always)"
+        "evaluate.gated absent (now run)", "evaluate.gated:0.99 absent (now run)",
+        "evaluate.plan.plan_gate reward_seen (now always)"
     ]  # fmt: skip
     # a mode or an arm only one side has is one entry; the derived chunk size written out is none
     once = json.loads(json.dumps(now))
     once["evaluate"]["plan_dicp"] = True
     once["collect"]["tasks_per_chunk"] = 500  # what 100 histories give anyway
     assert diff(once, "dicp") == [
-        "evaluate.gated absent (now run)", "evaluate.policy absent (now run)"
+        "evaluate.gated absent (now run)", "evaluate.gated:0.99 absent (now run)",
+        "evaluate.policy absent (now run)"
     ] and diff(once, "ad") == []  # fmt: skip
+    # a table made before the planner's reference tie order planned with ties by policy: its
+    # planned cells are dated and its planned rows named so; its model-free ones stay current
+    made = {"experiment": now, "created": "2026-12-02T00:00:00+0000"}
+    old_ties = recorded_experiment(made, exp)
+    assert differences(old_ties, exp, "darkroom", "dicp") == [
+        "evaluate.gated.plan_ties policy (now index)",
+        "evaluate.gated:0.99.plan_ties policy (now index)",
+        "evaluate.plan.plan_ties policy (now index)",
+    ] and differences(old_ties, exp, "darkroom", "ad") == []  # fmt: skip
+    row = {"backbone": "DICP + plan"}
+    assert named(row, made)["backbone"] == "DICP + plan, ties by policy"
+    assert named({"backbone": "DICP"}, made)["backbone"] == "DICP"
+    assert named(row, {**made, "created": PLAN_TIES_SINCE})["backbone"] == "DICP + plan"
     lam = load_experiment("darkroom-lambda", "cpu")
     fewer = json.loads(json.dumps(lam.to_dict()))
     fewer["filter"]["sweep"]["values"] = [0, 0.5, 1, 2]
@@ -79,11 +95,11 @@ def test_cells_done_older_or_not_run_and_exported_runs_shorten_what_is_left(tmp_
     older["collect"]["histories"] = 50
     ad = [("lam=0", _row("AD", -0.062)), ("lam=1", _row("AD", 0.017))]
     # the current budget wins over a later table of an older one; two runs are not enough
-    _table(tmp_path, "lam-ad", now, ad, "2026-12-01T00:00:00+0000", stage_s=8748)
-    _table(tmp_path, "lam-ad-old", older, ad, "2026-12-02T00:00:00+0000")
-    _table(tmp_path, "lam-ad-2runs", {**now, "runs": 2}, ad, "2026-12-03T00:00:00+0000")
+    _table(tmp_path, "lam-ad", now, ad, "2027-01-01T00:00:00+0000", stage_s=8748)
+    _table(tmp_path, "lam-ad-old", older, ad, "2027-01-02T00:00:00+0000")
+    _table(tmp_path, "lam-ad-2runs", {**now, "runs": 2}, ad, "2027-01-03T00:00:00+0000")
     plan = [("lam=0", _row("DICP", 0.3)), ("lam=0", _row("DICP + plan", 0.25))]
-    _table(tmp_path, "lam-dicp-old", older, plan, "2026-12-01T00:00:00+0000")
+    _table(tmp_path, "lam-dicp-old", older, plan, "2027-01-01T00:00:00+0000")
     before = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]
     (cell_ad, cell_dicp) = before["cells"]
     assert before["outside"] == []  # the lambda sweep is a Darkroom spec
@@ -178,7 +194,7 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
     exp = load_experiment("darkroom-lambda", "cpu")
     now = exp.to_dict()
     ad = [("lam=0", _row("AD", 0.1))]
-    _table(tmp_path, "one-run", {**now, "runs": 1}, ad, "2026-12-01T00:00:00+0000")
+    _table(tmp_path, "one-run", {**now, "runs": 1}, ad, "2027-01-01T00:00:00+0000")
     bad = {
         "runs-text": ({**now, "runs": "three"}, ad),
         "train-text": ({**now, "train": "abc"}, ad),
@@ -186,7 +202,7 @@ def test_fewer_runs_and_malformed_tables_or_exports_are_named_never_fatal(tmp_pa
         "e-text": (now, [("lam=0", {**_row("AD", 0.1), "E": "0.5"})]),  # a string: no number
     }
     for name, (rec, rows) in bad.items():
-        _table(tmp_path, name, rec, rows, "2026-12-02T00:00:00+0000", stage_s=float("nan"))
+        _table(tmp_path, name, rec, rows, "2027-01-02T00:00:00+0000", stage_s=float("nan"))
     (tmp_path / "cells-dict").mkdir()
     (tmp_path / "cells-dict" / "results.json").write_text(
         json.dumps({"experiment": now, "cells": {"x": 1}})
@@ -229,10 +245,10 @@ def test_a_custom_spec_of_a_shipped_stem_is_not_the_shipped_table(tmp_path):
     """``mine/darkroom-lambda.yaml`` shares the shipped spec's name (its stem), not its cells."""
     now = load_experiment("darkroom-lambda", "cpu").to_dict()
     ad = [("lam=0", _row("AD", 0.1))]
-    _table(tmp_path, "custom", {**now, "spec": "mine/darkroom-lambda.yaml"}, ad, "2026-12-02")
+    _table(tmp_path, "custom", {**now, "spec": "mine/darkroom-lambda.yaml"}, ad, "2027-01-02")
     cell = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]["cells"][0]
     assert cell["status"] == "not run"
-    _table(tmp_path, "shipped", now, ad, "2026-12-01")  # its own record names it by its name
+    _table(tmp_path, "shipped", now, ad, "2027-01-01")  # its own record names it by its name
     cell = coverage(tmp_path, "cpu", ["darkroom-lambda"])["specs"][0]["cells"][0]
     assert (cell["status"], cell["table"]) == ("done", "shipped")
 

@@ -28,7 +28,7 @@ def _table(root: Path, name: str, cells: list, paper: dict, stage_s=None, select
         "experiment": {"name": name, "title": f"Title of {name}", "preset": "cpu", "runs": 3,
                        "paper": paper},
         "cells": cells,
-        "created": "2026-12-02T00:00:00+0000",
+        "created": "2027-01-02T00:00:00+0000",
     }  # fmt: skip
     if stage_s is not None:
         summary["stage_s"] = stage_s
@@ -210,7 +210,7 @@ def test_index_states_each_tables_recorded_budget(tmp_path):
         "`lhf reproduce new --preset cpu --runs 3`; 100 histories per goal; ad 3,000 / dicp 4,000 "
         "training steps;" in text
     )
-    assert "`lhf reproduce none --preset cpu --runs 3`; 2026-12-02T00:00:00+0000." in text
+    assert "`lhf reproduce none --preset cpu --runs 3`; 2027-01-02T00:00:00+0000." in text
 
 
 def test_command_lines_under_any_root_run_from_its_parent(tmp_path, monkeypatch):

@@ -92,14 +92,14 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     # the resolved sequence length is recorded, so resuming with it written out is the same run
     prov = json.loads((out / "train_config.json").read_text())
     assert prov["sequence_length"] == 160
-    # so is the reward weighting (DICP on Darkroom: 'actions'); the flag is kept as given
-    assert prov["reward_weighting"] == "actions" and prov["train"]["reward_weighting"] is None
+    # so is the reward weighting (unset: the reference's 'data'); the flag is kept as given
+    assert prov["reward_weighting"] == "data" and prov["train"]["reward_weighting"] is None
     # and the attention code that ran (auto: the kernel where it builds; attention_kernel.py)
     kernel = "kernel" if attention_kernel.available() is None else "torch"
     assert prov["attention_kernel"] == kernel and prov["train"]["attention_kernel"] == "auto"
     card = (out / "README.md").read_text()  # the card says how it was trained and evaluated
     assert "sequences of 160 transitions, band attention over the last 40" in card
-    assert "reward loss weighting 'actions'" in card
+    assert "reward loss weighting 'data'" in card
     assert "| no | cache |" in card and "context cache" in card
     explicit = TrainConfig(dataset=str(learned_darkroom.root), objective="dicp", out=str(out),
                            max_steps=40, attention="band", sequence_length=160, resume=True,
@@ -107,10 +107,10 @@ def test_band_attention_trains_on_sequences_and_evaluates_with_the_stream(
     train(explicit)  # nothing left to do, but the identity check passes
     with pytest.raises(ValueError, match="sequence_length: 160 -> 120"):
         train(dataclasses.replace(explicit, sequence_length=120))
-    # the unset weighting and 'actions' written out are one run; 'data' is another
-    train(dataclasses.replace(explicit, reward_weighting="actions"))
-    with pytest.raises(ValueError, match="reward_weighting: 'actions' -> 'data'"):
-        train(dataclasses.replace(explicit, reward_weighting="data"))
+    # the unset weighting and 'data' written out are one run; 'actions' is another
+    train(dataclasses.replace(explicit, reward_weighting="data"))
+    with pytest.raises(ValueError, match="reward_weighting: 'data' -> 'actions'"):
+        train(dataclasses.replace(explicit, reward_weighting="actions"))
 
 
 def test_selection_counts_weight_the_windows(small_darkroom, tmp_path):
@@ -201,7 +201,8 @@ def test_bad_inputs_fail_before_training(small_darkroom, tmp_path):
 @pytest.mark.parametrize(
     "env_id, objective, given, resolved",
     [
-        ("darkroom", "dicp", None, "actions"),  # reward classes, discrete actions: weighted
+        ("darkroom", "dicp", None, "data"),  # the reference's plain loss
+        ("darkroom", "dicp", "actions", "actions"),  # ours, asked for
         ("darkroom", "dicp", "data", "data"),
         ("darkroom", "ad", None, "data"),  # no reward head
         ("metaworld-reach", "dicp", None, "data"),  # a regression head
