@@ -29,7 +29,7 @@ from results_coverage import named, render_coverage
 from results_coverage import recorded_number as _num
 
 from lhf_hf.errors import NotFoundError, UserError
-from lhf_hf.evaluation.compare import detectable_difference
+from lhf_hf.evaluation.compare import detectable_difference, paired_statistics
 from lhf_hf.reproduce.experiment import PRESETS, shadows_shipped, train_settings
 from lhf_hf.reproduce.report import (
     command_line,
@@ -81,10 +81,42 @@ def detectable_e(r: dict) -> float | None:
     return detectable_difference(f - b) / float(b.mean())
 
 
+def _run_means(r: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """A row's recorded paired run means (baseline, LHF), or None (unrecorded, unpaired, or not
+    finite)."""
+    b, f = (r.get(k) for k in ("baseline_run_means", "lhf_run_means"))
+    if not isinstance(b, list) or not isinstance(f, list) or len(b) != len(f) or len(b) < 2:
+        return None
+    if any(_num(x) is None for x in (*b, *f)):
+        return None
+    return np.asarray(b, float), np.asarray(f, float)
+
+
+def restated(r: dict) -> dict:
+    """``r`` with its statistics recomputed from its recorded run means by today's definitions
+    (``compare.paired_statistics``: E's sample std, the delta-method interval of the E printed,
+    the paired test), so every table reads alike: tables made before them recorded a population
+    std and the interval of the mean per-run E.  A row without run means keeps what it recorded,
+    marked ``recorded_kind``."""
+    means = _run_means(r)
+    if means is None:
+        kept = any(r.get(k) is not None for k in ("E_std", "E_ci95"))
+        return {**r, "recorded_kind": kept}
+    return {**r, **paired_statistics(*means), "recorded_kind": False}
+
+
 def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
+    r = restated(r)
     e, std = _num(r.get("E")), _num(r.get("E_std"))
     lo, hi = _pair(r.get("E_interval95") or r.get("E_ci95")) or (None, None)
+
     p = _num((paper.get(env_id) or {}).get(objective_of(r["backbone"])))
+    shown = std is not None or lo is not None
+    old = (
+        " (as recorded: population std, interval of the mean per-run E)"
+        if r["recorded_kind"] and shown
+        else ""
+    )
     diff_ci = _pair(r.get("diff_ci95"))
     interval = (lo, hi) if lo is not None and hi is not None else None
     reading = judged(e, std, interval, diff_ci).replace("|", "\\|")  # a pipe ends a table cell
@@ -97,7 +129,7 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
     )
     return (
         f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
-        f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}"
+        f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}{old}"
         f" | {'-' if p is None else f'{p:+.1f}'} | {percent(detectable_e(r))} | {reading}"
         f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
     )
@@ -215,14 +247,17 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "",
         "Every table `lhf reproduce` wrote under this folder (`scripts/results_index.py` renders this "
         "page from their `results.json`). E = (whole-curve mean return with LHF - without) / without, "
-        "the returns averaged over the runs; ± is the std of the per-run E over paired runs (same "
-        "seed and split), the interval the 95% interval of E (the delta method on the paired run "
-        "means; tables that recorded the mean per-run E's Student-t interval instead show that; `-` "
-        "for tables that recorded neither). The verdict is the paired t-test on the "
+        "the returns averaged over the runs; ± is the sample std of the per-run E over paired runs "
+        "(same seed and split), the interval the 95% interval of the E printed (the delta method on "
+        "the paired run means). Both, the verdict and the detectable E are recomputed here from "
+        "each table's recorded run means, so every table reads alike (tables made before these "
+        "definitions recorded a population std and the interval of the mean per-run E); a table "
+        "that recorded no run means shows what it recorded, marked so, and `-` where it recorded "
+        "nothing. The verdict is the paired t-test on the "
         "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "
-        "are). A table that recorded no differences is judged on E's interval, and one that recorded "
+        "are). A table that recorded no run means is judged on E's interval, and one that recorded "
         "no interval on |E| against its std. The detectable E is the smallest E the verdict's test "
         "finds with 80% power at the spread of the cell's paired differences: an effect below it "
         "needs more runs before a verdict can show it (`-` with fewer than 2 paired runs)."

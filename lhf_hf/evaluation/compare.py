@@ -260,24 +260,8 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
         # E divides by the baseline's return: with a baseline of 0 it is undefined (None in the
         # JSON, which stays valid JSON; NaN is not), and the paired difference still says which
         # arm returned more
-        e = (mf.mean() - mb.mean()) / mb.mean() if mb.mean() != 0 else None
-        e_std = e_ci = diff_ci = mde = None
-        paired = len(mb) == len(mf) and len(mb) > 1
-        if paired and np.all(mb != 0):
-            per_run = (mf - mb) / mb  # (runs,) E of each paired run (same seed and split)
-            e_std = float(np.std(per_run, ddof=1))
-        if paired and e is not None:
-            # 95% interval of the E printed (with 2 or 3 runs it is wide: t = 12.7 / 4.3, which
-            # is the honest reading)
-            e_ci = _ratio_interval(mb, mf)
-        if paired:
-            # The verdict's test: the paired t-test on the runs' return differences (same seed
-            # and split). A per-run ratio divides by that run's baseline return, so one weak
-            # baseline (0.6 against 1.9) makes E's spread, and its interval, as wide as the
-            # effect however alike the differences are; with positive baseline returns (the
-            # gridworlds' and Meta-World's are >= 0) the difference has the sign of E.
-            diff_ci = _t_interval(mf - mb)
-            mde = detectable_difference(mf - mb)
+        s = paired_statistics(mb, mf)
+        e = s["E"]
         tail = max(1, b.shape[1] // 10)
         rows.append(
             {
@@ -290,16 +274,11 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
                 "lhf_std": _std(mf),
                 "baseline_final": float(b[:, -tail:].mean()),
                 "lhf_final": float(f[:, -tail:].mean()),
-                "E": None if e is None else float(e),
+                "E": e,
                 "E_note": "undefined: the baseline's mean return is 0"
                 if e is None
                 else _near_zero(env_id, float(mb.mean())),
-                "E_std": e_std,
-                "E_interval95": e_ci,
-                "diff": float((mf - mb).mean()) if paired else None,
-                "diff_ci95": diff_ci,
-                "diff_mde80": mde,
-                "E_mde80": None if mde is None or e is None else mde / float(mb.mean()),
+                **{k: v for k, v in s.items() if k != "E"},
                 "baseline_run_means": mb.tolist(),
                 "lhf_run_means": mf.tolist(),
                 "baseline_runs": [r["_path"] for r in base[backbone]],
@@ -317,6 +296,37 @@ def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dic
             curves, out / "compare.png", title=f"{env_id}: baseline (dashed) vs LHF (solid)"
         )
     return result
+
+
+def paired_statistics(mb: np.ndarray, mf: np.ndarray) -> dict:
+    """What a row says about E from the runs' whole-curve means, baseline ``mb`` and LHF ``mf``
+    (runs,), paired by index (same seed and split): ``E`` (None where the baseline's mean is 0),
+    ``E_std`` (the sample std of the per-run E), ``E_interval95`` (the 95% interval of the E
+    printed, the delta method), ``diff`` / ``diff_ci95`` (the mean paired return difference and
+    its Student-t interval: the verdict's test), ``diff_mde80`` / ``E_mde80`` (the minimum
+    detectable difference and E).  Each None where it is undefined (fewer than 2 paired runs)."""
+    mb, mf = np.asarray(mb, dtype=float), np.asarray(mf, dtype=float)
+    e = float((mf.mean() - mb.mean()) / mb.mean()) if mb.mean() != 0 else None
+    out = dict.fromkeys(("E_std", "E_interval95", "diff", "diff_ci95", "diff_mde80", "E_mde80"))
+    out["E"] = e
+    if not (len(mb) == len(mf) and len(mb) > 1):
+        return out
+    if np.all(mb != 0):
+        out["E_std"] = float(np.std((mf - mb) / mb, ddof=1))  # per-run E (same seed and split)
+    if e is not None:
+        # 95% interval of the E printed (with 2 or 3 runs it is wide: t = 12.7 / 4.3, which is
+        # the honest reading)
+        out["E_interval95"] = _ratio_interval(mb, mf)
+    # The verdict's test: the paired t-test on the runs' return differences. A per-run ratio
+    # divides by that run's baseline return, so one weak baseline (0.6 against 1.9) makes E's
+    # spread, and its interval, as wide as the effect however alike the differences are; with
+    # positive baseline returns (the gridworlds' and Meta-World's are >= 0) the difference has
+    # the sign of E.
+    out["diff"] = float((mf - mb).mean())
+    out["diff_ci95"] = _t_interval(mf - mb)
+    out["diff_mde80"] = detectable_difference(mf - mb)
+    out["E_mde80"] = None if e is None else out["diff_mde80"] / float(mb.mean())
+    return out
 
 
 def _ratio_interval(b: np.ndarray, f: np.ndarray) -> list[float]:

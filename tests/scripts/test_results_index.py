@@ -43,10 +43,13 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     root = tmp_path / "results"  # the command lines are run from its parent
     root.mkdir()
     _table(root, "b-noisy", [{"env_id": "darkroom", "arm": "lhf", "rows": [
-        # paired run means recorded, no E_mde80 (an older table): the detectable E from them
-        _row("AD", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51, baseline_run_means=[4, 4, 4],
+        # paired run means recorded by an older table (a population std, the interval of the
+        # mean per-run E, no E_mde80, no differences): all restated from the run means
+        _row("AD", 1.2, 0.3, [0.5, 1.9], 4.0, 6.0, baseline_run_means=[4, 4, 4],
              lhf_run_means=[5, 6, 7]),
         _row("DICP + plan", -0.1, 0.5),
+        # no run means: shown as recorded, marked, and judged on the recorded interval
+        _row("DICP + plan, gated", 1.2, 0.3, [0.5, 1.9], 4.33, 9.51),
         # E's interval spans 0 but the paired return differences' excludes it: the latter decides
         _row("DPT", 2.37, 2.66, [-4.6, 11.6], 1.49, 5.04, diff=3.54, diff_ci95=[1.47, 5.61]),
         # a baseline returning 0: E undefined (null in JSON), the difference still decides
@@ -66,18 +69,27 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     assert text.index("## Title of a-main") < text.index("## [Title of b-noisy](b-noisy-cpu/")
     assert "(a-main-cpu/report.md)" not in text
     assert "`lhf reproduce b-noisy --preset cpu --runs 3`; 2.00 h of stage time" in text
+    # by hand: per-run E 0.25, 0.5, 0.75 (sample std 0.25); differences 1, 2, 3 (mean 2, std 1):
+    # CI 2 +/- t(0.975, 2) / sqrt(3) = 2 +/- 2.484; E's delta interval 0.5 +/- 4.3027 sqrt(1/48)
     assert (
-        "| darkroom | AD | +120.0 ± 30.0 | +50.0 .. +190.0 | +90.7 | +77.4 | helps | 4.33 -> 9.51 |"
-        in text
+        "| darkroom | AD | +50.0 ± 25.0 | -12.1 .. +112.1 | +90.7 | +77.4 | no clear effect (the "
+        "paired return difference's 95% CI spans 0) | 4.00 -> 6.00 (difference +2.00, 95% CI "
+        "-0.48 .. +4.48) |" in text
+    )
+    recorded = " (as recorded: population std, interval of the mean per-run E)"
+    assert (
+        f"| darkroom | DICP + plan, gated | +120.0 ± 30.0 | +50.0 .. +190.0{recorded} | +19.0 | - "
+        "| helps | 4.33 -> 9.51 |" in text
     )
     assert (
-        "| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0 | - | - | helps "
+        f"| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0{recorded} | - | - | helps "
         "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
     assert "| darkroom | DICP | - | - | +19.0 | - | helps | 0.00 -> 5.04 (difference +5.04" in text
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert (
-        "| darkroom | DICP + plan | -10.0 ± 50.0 | - | +19.0 | - | no clear effect (\\|E\\|" in text
+        f"| darkroom | DICP + plan | -10.0 ± 50.0 | -{recorded} | +19.0 | - | no clear effect (\\|E\\|"
+        in text
     )
     # an arm other than lhf is named; no paper value, one run (no std)
     assert (
@@ -166,7 +178,10 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
     out = subprocess.run([sys.executable, str(script), "--root", str(tmp_path)],
                          capture_output=True, text=True, check=True)  # fmt: skip
     assert out.stdout.strip() == str(tmp_path / "README.md")
-    assert "| darkroom | AD | +10.0 ± 20.0 | - | +25.1 |" in (tmp_path / "README.md").read_text()
+    assert (
+        "| darkroom | AD | +10.0 ± 20.0 | - (as recorded: population std, interval of the mean per-run E) | +25.1 |"
+        in (tmp_path / "README.md").read_text()
+    )
     bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "none")],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 1 and "no results folder" in bad.stderr
