@@ -400,6 +400,26 @@ def spec_path(name_or_path: str | Path) -> Path:
     )
 
 
+def _leaves(value, prefix: str) -> list[str]:
+    """The dotted paths of a nested mapping's values (``train.by_objective.dicp.max_steps``)."""
+    if not isinstance(value, dict) or not value:
+        return [prefix]
+    return [p for k, v in value.items() for p in _leaves(v, f"{prefix}.{k}")]
+
+
+def _check_complete(where: str, preset: dict, choices: dict) -> None:
+    """A preset that says how its settings were chosen says it for every setting it sets (its
+    ``budget`` text aside): a reviewer reads the list as complete (issue 55)."""
+    sets = [p for key, v in preset.items() if key not in ("budget", "choices", "title")
+            for p in (_leaves(v, key) if key in CONFIGS else [key])]  # fmt: skip
+    missing = [p for p in sets if not any(p == c or p.startswith(f"{c}.") for c in choices)]
+    if missing:
+        raise UserError(
+            f"{where}: its choices say how some settings were chosen, so they must say it for "
+            f"every setting the preset sets; none for {', '.join(missing)}"
+        )
+
+
 def load_experiment(
     name_or_path: str,
     preset: str = "quick",
@@ -430,6 +450,8 @@ def load_experiment(
         if not isinstance(merged.get(key, kind()), kind):
             what = "a mapping of settings" if kind is dict else f"a list, e.g. [{merged[key]}]"
             raise UserError(f"{path}: {key} must be {what}")
+    if isinstance(presets[preset].get("choices"), dict):
+        _check_complete(f"{path.stem} --preset {preset}", presets[preset], merged["choices"])
     if runs is not None:
         if int(runs) != merged.get("runs", Experiment.runs) and isinstance(
             merged.get("choices"), dict

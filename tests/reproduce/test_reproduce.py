@@ -704,21 +704,33 @@ def test_the_train_stage_is_named_by_the_attention_code_that_trains(tmp_path, mo
 def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
     """``choices`` names settings the spec sets, each with how it was chosen and the evidence;
     the report's table shows them with their values.  A choice of a setting the spec does not
-    set, an unknown kind or no evidence is refused at load."""
+    set, an unknown kind or no evidence is refused at load, and so is a preset whose choices
+    leave out a setting it sets."""
     from lhf_hf.reproduce.report import _choices
 
     spec = json.loads(json.dumps(TINY))
+    rest = ("collect.steps", "collect.tasks", "evaluate.episodes", "train.batch_size",
+            "train.preset", "train.save_steps")  # fmt: skip
     spec["presets"]["quick"]["choices"] = {
         "train.max_steps": {"chosen": "budget", "evidence": "what 2 cores afford"},
         "collect.histories": {"chosen": "validation", "evidence": "results/x.md"},
         "runs": {"chosen": "budget", "evidence": "t quantiles"},
+        **{k: {"chosen": "design", "evidence": "a tiny test"} for k in rest},
     }
     exp = load_experiment(_spec(tmp_path, spec), "quick")
     assert exp.setting("train.max_steps") == 4 and exp.setting("collect.histories") == 4
     rows = [line for line in _choices(exp) if line.startswith("| `")]
-    assert sorted(rows) == ["| `collect.histories` | `4` | validation | results/x.md |",
-                            "| `runs` | `2` | budget | t quantiles |",
-                            "| `train.max_steps` | `4` | budget | what 2 cores afford |"]  # fmt: skip
+    assert len(rows) == 9 and {"| `collect.histories` | `4` | validation | results/x.md |",
+                               "| `runs` | `2` | budget | t quantiles |",
+                               "| `train.max_steps` | `4` | budget | what 2 cores afford |"} <= set(rows)  # fmt: skip
+    # every setting the preset sets, or none: a list a reviewer reads as complete
+    incomplete = json.loads(json.dumps(spec))
+    del incomplete["presets"]["quick"]["choices"]["train.batch_size"]
+    del incomplete["presets"]["quick"]["choices"]["runs"]
+    with pytest.raises(
+        ValueError, match="every setting the preset sets; none for runs, train.batch_size$"
+    ):
+        load_experiment(_spec(tmp_path, incomplete, "incomplete"), "quick")
     assert _choices(load_experiment(_spec(tmp_path, TINY, "none"), "quick")) == []
     # --runs another count: the spec's reason for its count no longer applies; a pipe is escaped
     spec["presets"]["quick"]["choices"]["collect.histories"]["evidence"] = "a | b"
@@ -738,9 +750,13 @@ def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
         ({"train.max_steps": "budget"}, r"must be \{chosen: ..., evidence: ...\}"),
         (["train.max_steps"], "choices must map settings .* got a list"),
     ]:
-        spec["presets"]["quick"]["choices"] = choice
+        bad = json.loads(json.dumps(spec))
+        whole = bad["presets"]["quick"]["choices"]
+        bad["presets"]["quick"]["choices"] = (
+            {**whole, **choice} if isinstance(choice, dict) else choice
+        )
         with pytest.raises(ValueError, match=message):
-            load_experiment(_spec(tmp_path, spec, "bad"), "quick")
+            load_experiment(_spec(tmp_path, bad, "bad"), "quick")
 
 
 def test_the_shipped_main_and_noisy_tables_say_how_their_settings_were_chosen():
