@@ -17,9 +17,10 @@ The runs it reads were made with (split 0; validation goals = split 0's held-out
         --max-steps 12000 --batch-size 64 --lr 3e-3 --reward-weighting data --seed 0 \
         --save-steps 500 --out runs/dicp56/baseline        # snapshots copied at log-spaced steps
     lhf evaluate --model SNAPSHOT --tasks validation --episodes 100 --rollouts 4 --seed 0 \
-        [--plan [--plan-gate reward_seen | --plan-dynamics oracle | --plan-reward-threshold P]] \
-        --out EVAL/step-N-MODE          # MODE: policy, plan, gated, oracle, threshold90, threshold99,
-        #   gatedthreshold99 (both)
+        [--plan [--plan-gate reward_seen] [--plan-reward-threshold P] [--plan-dynamics oracle]] \
+        --out EVAL/step-N-MODE          # MODE: policy; ref, refgated, refgatedthreshold99 (the
+        #   reference's ties, the default); made with ties by policy before it existed: plan,
+        #   gated, oracle, threshold90, threshold99, gatedthreshold99 (MODES)
 
 then::
 
@@ -39,15 +40,23 @@ from scipy import stats
 
 from lhf_hf.utils.io import read_json, save_figure_atomic, write_json_atomic
 
+#: folder suffix -> label.  ``ref*`` folders plan with the reference's tie order below depth 0
+#: (``--plan-ties index``, the default since 2026-12-06); the others were made before it and break
+#: ties by the policy (a variant of ours): ``collect`` checks each folder's config says so.
 MODES = {
     "policy": "DICP (policy alone)",
-    "plan": "DICP + plan (reference)",
-    "gated": "DICP + plan, gated on a seen reward (ours)",
-    "threshold90": "DICP + plan, reward p >= 0.9 (ours)",
-    "threshold99": "DICP + plan, reward p >= 0.99 (ours)",
-    "gatedthreshold99": "DICP + plan, gated, reward p >= 0.99 (ours)",
-    "oracle": "planner with the true dynamics",
+    "ref": "DICP + plan (reference)",
+    "refgated": "DICP + plan, gated on a seen reward (ours)",
+    "refgatedthreshold99": "DICP + plan, gated, reward p >= 0.99 (ours)",
+    "plan": "DICP + plan, ties by policy (ours)",
+    "gated": "DICP + plan, gated, ties by policy (ours)",
+    "threshold90": "DICP + plan, reward p >= 0.9, ties by policy (ours)",
+    "threshold99": "DICP + plan, reward p >= 0.99, ties by policy (ours)",
+    "gatedthreshold99": "DICP + plan, gated, reward p >= 0.99, ties by policy (ours)",
+    "oracle": "planner with the true dynamics (ties by policy)",
 }
+#: the modes the plot draws (the others are in the JSON and the README's tables)
+PLOTTED = ("policy", "ref", "refgated", "refgatedthreshold99", "plan", "oracle")
 LEVELS = {"AD (DICP paper)": 12.5, "DICP + plan (DICP paper)": 15.0}
 _FOLDER = re.compile(r"step-(\d+)-(\w+)$")
 
@@ -103,7 +112,9 @@ def phantom_rewards(diagnosis: dict, actions: int = 5) -> dict:
 def paired(a: np.ndarray, b: np.ndarray) -> dict:
     """Mean of ``a - b`` over goals, its 95 % t-interval, and on how many goals it is > 0."""
     d = a - b
-    half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else np.nan
+    half = (
+        stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else np.nan
+    )
     return {
         "mean": round(float(d.mean()), 4),
         "ci95": [round(float(d.mean() - half), 4), round(float(d.mean() + half), 4)],
@@ -121,6 +132,9 @@ def collect(evals: Path) -> dict:
             continue
         step, mode = int(m.group(1)), m.group(2)
         res = read_json(folder / "eval_results.json")
+        ties = res["config"].get("plan_ties", "policy")  # written before the field: by policy
+        if res["config"].get("plan") and (ties == "index") != mode.startswith("ref"):
+            raise SystemExit(f"{folder}: planned with ties by {ties}, not what {mode!r} names")
         whole, last = goal_means(res)
         points.setdefault(step, {})[mode] = {
             "whole_curve": round(float(whole.mean()), 4),
@@ -174,7 +188,8 @@ def plot(points: dict, out: Path) -> None:
         (axes[0], "whole_curve", "mean over the 100 episodes"),
         (axes[1], "last10", "episodes 91-100"),
     ]:
-        for mode, label in MODES.items():
+        for mode in PLOTTED:
+            label = MODES[mode]
             xs = [s for s in points if mode in points[s]]
             if not xs:
                 continue
@@ -191,7 +206,9 @@ def plot(points: dict, out: Path) -> None:
     axes[0].set_ylabel("return (8 validation goals x 4 rollouts)")
     fig.text(0.01, 0.01, "bars: standard error over the goals", fontsize=7)
     axes[0].legend(fontsize=7, loc="lower right")
-    fig.suptitle("DICP on Darkroom (paper-protocol data, 100 histories per goal): planning vs policy")
+    fig.suptitle(
+        "DICP on Darkroom (paper-protocol data, 100 histories per goal): planning vs policy"
+    )
     fig.tight_layout()
     save_figure_atomic(fig, out)  # closes the figure
 
@@ -200,9 +217,13 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--evals", required=True, help="folder of step-N-MODE evaluation folders")
     p.add_argument("--train-log", default=None, help="lhf train's log (losses, summary)")
-    p.add_argument("--diagnoses", nargs="*", default=[],
-                   help="diagnose_planning.py JSONs of this training's snapshots, named "
-                   "diagnose-ARM-STEP.json")
+    p.add_argument(
+        "--diagnoses",
+        nargs="*",
+        default=[],
+        help="diagnose_planning.py JSONs of this training's snapshots, named "
+        "diagnose-ARM-STEP.json",
+    )
     p.add_argument("--out", required=True)
     args = p.parse_args()
     points = collect(Path(args.evals))

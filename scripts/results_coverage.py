@@ -40,6 +40,7 @@ from urllib.parse import quote
 
 import yaml
 
+from lhf_hf.envs import get_spec
 from lhf_hf.errors import UserError
 from lhf_hf.reproduce.estimate import REFERENCE, duration, estimate, reference_rates
 from lhf_hf.reproduce.experiment import (
@@ -96,6 +97,9 @@ def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object
     collect = exp.collect_config(env, 0).to_dict()
     collect.pop("split_seed", None)
     filters = {arm: f.to_dict() for arm, f in exp.filter_arms(0)}
+    if not get_spec(env).is_discrete:  # the greedy search has no tie order
+        for d in evaluate.values():
+            d.pop("plan_ties", None)
     for d in (*evaluate.values(), train, collect, *filters.values()):
         d.pop("seed", None)  # the run's
         for k in PLACES:
@@ -186,7 +190,7 @@ def recorded_number(x) -> float | None:
 #: Tables made before the beam search took the reference's tie order below depth 0 (``plan_ties``,
 #: ``index``) planned with ties broken by the policy, a variant of ours (the outside review of
 #: issue 55 found it): their planned rows are that variant, and their cells are not current.
-PLAN_TIES_SINCE = "2026-12-06T12:00"
+PLAN_TIES_SINCE = "2026-12-06T11:02"  # commit 72c7fac
 
 
 def planned_before_ties(summary: dict) -> bool:
@@ -195,16 +199,20 @@ def planned_before_ties(summary: dict) -> bool:
     return isinstance(created, str) and created < PLAN_TIES_SINCE
 
 
-def named(row: dict, summary: dict) -> dict:
+def named(row: dict, summary: dict, env: str) -> dict:
     """``row`` with its backbone named as ``evaluation.compare`` names it now: a table whose spec
     gated every planned evaluation (``plan_gate``) recorded its planned rows as ``DICP + plan``,
     a variant that is not the reference planner, so it is read as ``DICP + plan, gated``; a table
-    made before ``PLAN_TIES_SINCE`` planned with ties by policy, which its rows then name."""
+    made before ``PLAN_TIES_SINCE`` planned with ties by policy, which its rows on ``env`` then
+    name where the planner is the beam search (discrete actions)."""
     backbone = row["backbone"]
     gate = (summary.get("experiment", {}).get("evaluate") or {}).get("plan_gate", "always")
     if gate != "always" and backbone.endswith(" + plan"):
         backbone += ", gated"
-    if " + plan" in backbone and planned_before_ties(summary) and "ties by" not in backbone:
+    if (
+        " + plan" in backbone and planned_before_ties(summary) and "ties by" not in backbone
+        and get_spec(env).is_discrete
+    ):  # fmt: skip
         backbone += ", ties by policy"
     return {**row, "backbone": backbone}
 
@@ -227,7 +235,7 @@ def cell_results(summary: dict, env: str, objective: str) -> list[dict]:
             if not isinstance(cell.get("arm"), str):
                 raise UserError(f"a cell has no arm: {str(cell)[:60]}")
             if objective_of(row["backbone"]) == objective:
-                row = named(row, summary)
+                row = named(row, summary, env)
                 out.append({**row, "arm": cell["arm"], "E": recorded_number(row.get("E"))})
     return out
 

@@ -59,11 +59,12 @@ def judged(e: float | None, std: float | None, ci, diff_ci) -> str:
     if diff_ci is None and e is None:  # E undefined (a baseline return of 0) or not recorded
         return "undefined (no finite E)"
     if diff_ci is None and ci is not None:
-        return judge(ci, "the 95% CI spans 0")
+        said = judge(ci, "the 95% CI spans 0")
+        return said if "(" in said else f"{said} (E's 95% CI; no paired test recorded)"
     if diff_ci is None and std is not None:
         if abs(e) <= std:
             return "no clear effect (|E| within its std)"
-        return "helps" if e > 0 else "hurts"
+        return f"{'helps' if e > 0 else 'hurts'} (|E| beyond its std; no paired test recorded)"
     return verdict({"E": e, "diff_ci95": diff_ci})
 
 
@@ -128,8 +129,8 @@ def _row(label: str, env_id: str, r: dict, paper: dict) -> str:
         else ""
     )
     return (
-        f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}"
-        f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}{old}"
+        f"| {label} | {r['backbone']} | {percent(e)}{f' ± {100 * std:.1f}' if std is not None else ''}{old}"
+        f" | {f'{percent(lo)} .. {percent(hi)}' if lo is not None and hi is not None else '-'}"
         f" | {'-' if p is None else f'{p:+.1f}'} | {percent(detectable_e(r))} | {reading}"
         f" | {' -> '.join('-' if x is None else f'{x:.2f}' for x in returns)}{paired} |"
     )
@@ -175,7 +176,7 @@ def _table(folder: Path, summary: dict) -> list[str]:
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
         for r in cell["rows"]:
-            lines.append(_row(label, cell["env_id"], named(r, summary), paper))
+            lines.append(_row(label, cell["env_id"], named(r, summary, cell["env_id"]), paper))
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]
@@ -253,7 +254,9 @@ def render_index(root: str | Path, coverage: str | None = None) -> tuple[str, li
         "each table's recorded run means, so every table reads alike (tables made before these "
         "definitions recorded a population std and the interval of the mean per-run E); a table "
         "that recorded no run means shows what it recorded, marked so, and `-` where it recorded "
-        "nothing. The verdict is the paired t-test on the "
+        "nothing. A planned row made before the planner took the reference DICP code's tie order "
+        "(2026-12-06) is named `ties by policy`: its beam search broke ties below depth 0 by the "
+        "policy, a variant of ours (docs/evaluation.md). The verdict is the paired t-test on the "
         "runs' return differences (LHF - baseline): an effect counts only when their mean's 95% "
         "confidence interval, shown after the returns, excludes 0 (a per-run E divides by that "
         "run's baseline return, so one weak baseline widens E's interval whatever the differences "

@@ -111,6 +111,8 @@ class EvalConfig:
             )
         if self.context not in CONTEXTS:
             raise UserError(f"EvalConfig.context must be one of {CONTEXTS}, got {self.context!r}")
+        if self.plan_order != "sample" and not self.plan:
+            raise UserError("EvalConfig.plan_order is a planning setting: pass plan=True (--plan)")
         if self.plan_ties != "index" and not self.plan:
             raise UserError("EvalConfig.plan_ties is a planning setting: pass plan=True (--plan)")
         if self.plan_gate != "always" and not self.plan:

@@ -84,10 +84,20 @@ def backbone_of(r: dict) -> str:
     """The table row of a run: its objective, planning, and "seen tasks" when the model trained on
     some of the evaluated tasks (``lhf evaluate --allow-seen``), so such a row is never read as
     unseen-task ICRL."""
-    return r["objective"].upper() + _planning(r["config"]) + (" [seen tasks]" if is_seen(r) else "")
+    return (
+        r["objective"].upper()
+        + _planning(r["config"], _beam_searched(r))
+        + (" [seen tasks]" if is_seen(r) else "")
+    )
 
 
-def _planning(config: dict) -> str:
+def _beam_searched(r: dict) -> bool:
+    """Whether the run's planner is the beam search (discrete actions), whose tie order
+    (``plan_ties``) matters; Meta-World's greedy search has none."""
+    return "env_id" not in r or get_spec(r["env_id"]).is_discrete
+
+
+def _planning(config: dict, beam_search: bool = True) -> str:
     """`` + plan`` for the reference planner (every step once the context is full, the learned
     dynamics, actions in sampled order), with each departure named: a variant of ours is its own
     row, never merged into the reference's (issue 55)."""
@@ -97,7 +107,11 @@ def _planning(config: dict) -> str:
         *(["gated"] if config.get("plan_gate", "always") != "always" else []),
         *(["true dynamics"] if config.get("plan_dynamics", "model") != "model" else []),
         *(["argmax order"] if config.get("plan_order", "sample") != "sample" else []),
-        *(["ties by policy"] if config.get("plan_ties", "policy") != "index" else []),
+        *(
+            ["ties by policy"]
+            if beam_search and config.get("plan_ties", "policy") != "index"
+            else []
+        ),
         *([f"reward p >= {t:g}"] if (t := config.get("plan_reward_threshold")) else []),
     ]
     return " + plan" + "".join(f", {h}" for h in how)
@@ -143,6 +157,8 @@ _PLAN_SETTINGS = {"plan_gate": "always", "plan_dynamics": "model", "plan_order":
 
 def _settings(r: dict) -> tuple:
     keys = {**_SETTINGS, **(_PLAN_SETTINGS if r["config"].get("plan") else {})}
+    if not _beam_searched(r):
+        keys.pop("plan_ties", None)  # the greedy search has no tie order
     return tuple((k, r["config"].get(k, default)) for k, default in keys.items())
 
 

@@ -120,6 +120,11 @@ def rollout(
     tokens = StepTokens(model)
     # read once: a transformers config attribute costs ~2 us per access
     K, discrete = c.context_length, c.discrete_actions
+    if plan and plan_ties != "index" and not discrete:
+        raise UserError(
+            "plan_ties orders the beam search of discrete actions; this model's actions are "
+            "continuous (greedy search, which has no ties to order)"
+        )
     if plan and plan_reward_threshold is not None and not discrete:
         raise UserError(
             "a planning reward threshold applies to the beam search of discrete actions; this "

@@ -158,18 +158,19 @@ class Experiment:
         if not 1 <= self.runs <= MAX_RUNS:
             raise UserError(f"{name}: runs must be 1 .. {MAX_RUNS}, got {self.runs}")
         modes = self.evaluate.get("plan_dicp", False)
-        if not (
-            _is_alias(modes)
-            or isinstance(modes, list)
-            and modes
-            and all(_valid_mode(m) for m in modes)
-            and len(set(modes)) == len(modes)
-        ):
-            raise UserError(
-                f"{name}: evaluate.plan_dicp must be true, false, 'both' or a list of "
-                f"{', '.join(PLAN_MODES)}, plan:P or gated:P (P a reward threshold in (0, 1); "
-                f"each once), got {modes!r}"
-            )
+        what = (
+            f"{name}: evaluate.plan_dicp must be true, false, 'both' or a list of "
+            f"{', '.join(PLAN_MODES)}, plan:P or gated:P (P a reward threshold in (0, 1); each "
+            "once)"
+        )
+        if not (_is_alias(modes) or isinstance(modes, list) and modes):
+            raise UserError(f"{what}, got {modes!r}")
+        if isinstance(modes, list):
+            if bad := [m for m in modes if not _valid_mode(m)]:
+                raise UserError(f"{what}; not a mode: {', '.join(map(repr, bad))}")
+            seen = [_split_mode(m) for m in modes]  # "gated:0.99" and "gated:0.990" are one
+            if twice := [m for i, m in enumerate(modes) if seen[i] in seen[:i]]:
+                raise UserError(f"{what}; given twice: {', '.join(map(repr, twice))}")
         split = [_split_mode(m) for m in self.dicp_plan_modes()]
         if (
             any(b == "gated" for b, _ in split)

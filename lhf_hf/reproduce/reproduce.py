@@ -15,6 +15,7 @@ from lhf_hf import constants as C
 from lhf_hf.collection import collect
 from lhf_hf.collection.batched_collector import resolve_ppo_backend
 from lhf_hf.configs import CollectConfig
+from lhf_hf.envs import get_spec
 from lhf_hf.errors import UserError, UserRuntimeError
 from lhf_hf.evaluation import evaluate
 from lhf_hf.evaluation.compare import compare, mean_curves
@@ -109,9 +110,14 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                         del tc["training_args"]
                     if attention == "torch":
                         del tc["attention_kernel"]
-                    if obj == "dicp" and tc["reward_weighting"] is None:
-                        # unset meant 'actions' before the default became the reference's 'data':
-                        # the resolved value names the stage, so no old model passes for a new one
+                    spec = get_spec(env)
+                    if (
+                        obj == "dicp" and tc["reward_weighting"] is None
+                        and spec.is_discrete and spec.reward_values
+                    ):  # fmt: skip
+                        # unset meant 'actions' here (discrete actions, reward classes) before
+                        # the default became the reference's 'data': the resolved value names
+                        # the stage, so no old model passes for a new one
                         tc["reward_weighting"] = "data"
                     tc["src"] = data_stage.hash
                     if sel is not None:
@@ -142,8 +148,8 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                         ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
                         if ec["plan_reward_threshold"] is None:  # the hash from before the field
                             del ec["plan_reward_threshold"]
-                        if not ec["plan"]:  # model-free: the hash from before the field
-                            del ec["plan_ties"]
+                        if not ec["plan"] or not get_spec(env).is_discrete:
+                            del ec["plan_ties"]  # no beam search: the hash from before the field
                         ec["model"] = tr.hash
 
                         def do_eval(out: Path, run=run, plan=plan, tr=tr) -> None:

@@ -447,6 +447,8 @@ def test_metaworld_rollout_with_greedy_planning():
     assert np.all(np.abs(r.actions) <= 1)
     with pytest.raises(ValueError, match="gates the beam search of discrete-action envs"):
         rollout(model, batch, 1, plan=True, plan_gate="reward_seen", progress=False)
+    with pytest.raises(ValueError, match="plan_ties orders the beam search of discrete actions"):
+        rollout(model, batch, 1, plan=True, plan_ties="policy", progress=False)
 
 
 def test_compare_with_a_zero_baseline_writes_valid_json(tmp_path):

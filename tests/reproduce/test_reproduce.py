@@ -396,9 +396,10 @@ def test_dicp_is_evaluated_per_plan_mode_each_labelled(tmp_path):
         ({"plan_dicp": ["plan", "plan"]}, "each once"),
         ({"plan_dicp": ["sometimes"]}, "a list of none, plan, gated"),
         ({"plan_dicp": ["plan", "gated"], "plan_gate": "reward_seen"}, "leave plan_gate out"),
-        ({"plan_dicp": ["none:0.9"]}, "plan:P or gated:P"),
-        ({"plan_dicp": ["gated:1"]}, "plan:P or gated:P"),
+        ({"plan_dicp": ["none:0.9"]}, "not a mode: 'none:0.9'$"),
+        ({"plan_dicp": ["plan", "gated:1"]}, "not a mode: 'gated:1'$"),
         ({"plan_dicp": ["gated:high"]}, "plan:P or gated:P"),
+        ({"plan_dicp": ["gated:0.99", "gated:0.990"]}, "given twice: 'gated:0.990'$"),
         ({"plan_dicp": ["gated:0.9"], "plan_reward_threshold": 0.5}, "leave it out"),
     ):
         with pytest.raises(UserError, match=match):

@@ -31,13 +31,13 @@ PINNED = {
         {"collect": "7d7be3a4270e", "derive": "a7910b8e97dc", "filter": "ecf6cb53f161",
          "train": "f2f92ff6c193", "evaluate": "3ad4f78f08ee"},
         "e6b79293b51d9887",
-        {"darkroom-main": (60, "422b939b9cb8ad57"), "metaworld-sac": (60, "c7aa1475bad100a3")},
+        {"darkroom-main": (60, "422b939b9cb8ad57"), "metaworld-sac": (60, "151a50d1da17e056")},
     ),
     "kernel": (
         {"collect": "064a4099ef67", "derive": "303f4a2fcde0", "filter": "337d5f4bd84a",
          "train": "dc7ae205d9b2", "evaluate": "29a9056fd9d3"},
         "b18e9d65a665783c",
-        {"darkroom-main": (60, "9729479e9911f85e"), "metaworld-sac": (60, "710efaba5ec12d06")},
+        {"darkroom-main": (60, "9729479e9911f85e"), "metaworld-sac": (60, "b612d46b86fb8a3f")},
     ),
 }  # fmt: skip
 
@@ -60,11 +60,12 @@ def test_stage_hashes_are_unchanged(tmp_path, monkeypatch, code):
         found.setdefault(s.kind, s.hash[:12])
     assert found == first
     assert len(stages) == 38 and _digest(stages) == plan
-    # Changed on purpose: planned evaluations name their tie order (`plan_ties`, the reference's
-    # `index` now; they ran with ties by policy before), DICP trainings with an unset reward
-    # weighting name the resolved one (now the reference's `data`, was `actions`), and
-    # darkroom-main's cpu preset added `gated:0.99` evaluations (54 -> 60 stages).  Model-free
-    # evaluations and AD/DPT stages keep their hashes (the first stage of each kind above).
+    # Changed on purpose: the beam search's planned evaluations name their tie order (`plan_ties`,
+    # the reference's `index` now; they ran with ties by policy before), gridworld DICP trainings
+    # with an unset reward weighting name the resolved one (now the reference's `data`, was
+    # `actions`), and darkroom-main's cpu preset added `gated:0.99` evaluations (54 -> 60 stages).
+    # Model-free evaluations, AD/DPT stages and Meta-World's (greedy search, weighting `data`
+    # either way) keep their hashes (the first stage of each kind above; metaworld-sac's digest).
     for name, (n, digest) in shipped.items():
         stages, _ = plan_stages(load_experiment(name, "cpu"), tmp_path)
         assert (len(stages), _digest(stages)) == (n, digest), name

@@ -78,9 +78,11 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
         "evaluate.plan.plan_ties policy (now index)",
     ] and differences(old_ties, exp, "darkroom", "ad") == []  # fmt: skip
     row = {"backbone": "DICP + plan"}
-    assert named(row, made)["backbone"] == "DICP + plan, ties by policy"
-    assert named({"backbone": "DICP"}, made)["backbone"] == "DICP"
-    assert named(row, {**made, "created": PLAN_TIES_SINCE})["backbone"] == "DICP + plan"
+    assert named(row, made, "darkroom")["backbone"] == "DICP + plan, ties by policy"
+    assert named({"backbone": "DICP"}, made, "darkroom")["backbone"] == "DICP"
+    assert named(row, {**made, "created": PLAN_TIES_SINCE}, "darkroom")["backbone"] == "DICP + plan"
+    # Meta-World plans with the greedy search: no tie order to name, no cell dated by it
+    assert named(row, made, "metaworld-reach-wall")["backbone"] == "DICP + plan"
     lam = load_experiment("darkroom-lambda", "cpu")
     fewer = json.loads(json.dumps(lam.to_dict()))
     fewer["filter"]["sweep"]["values"] = [0, 0.5, 1, 2]

@@ -78,17 +78,17 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     )
     recorded = " (as recorded: population std, interval of the mean per-run E)"
     assert (
-        f"| darkroom | DICP + plan, gated | +120.0 ± 30.0 | +50.0 .. +190.0{recorded} | +19.0 | - "
-        "| helps | 4.33 -> 9.51 |" in text
+        f"| darkroom | DICP + plan, gated | +120.0 ± 30.0{recorded} | +50.0 .. +190.0 | +19.0 | - "
+        "| helps (E's 95% CI; no paired test recorded) | 4.33 -> 9.51 |" in text
     )
     assert (
-        f"| darkroom | DPT | +237.0 ± 266.0 | -460.0 .. +1160.0{recorded} | - | - | helps "
+        f"| darkroom | DPT | +237.0 ± 266.0{recorded} | -460.0 .. +1160.0 | - | - | helps "
         "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
     assert "| darkroom | DICP | - | - | +19.0 | - | helps | 0.00 -> 5.04 (difference +5.04" in text
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert (
-        f"| darkroom | DICP + plan | -10.0 ± 50.0 | -{recorded} | +19.0 | - | no clear effect (\\|E\\|"
+        f"| darkroom | DICP + plan | -10.0 ± 50.0{recorded} | - | +19.0 | - | no clear effect (\\|E\\|"
         in text
     )
     # an arm other than lhf is named; no paper value, one run (no std)
@@ -179,7 +179,7 @@ def test_empty_root_and_the_script_writes_readme(tmp_path):
                          capture_output=True, text=True, check=True)  # fmt: skip
     assert out.stdout.strip() == str(tmp_path / "README.md")
     assert (
-        "| darkroom | AD | +10.0 ± 20.0 | - (as recorded: population std, interval of the mean per-run E) | +25.1 |"
+        "| darkroom | AD | +10.0 ± 20.0 (as recorded: population std, interval of the mean per-run E) | - | +25.1 |"
         in (tmp_path / "README.md").read_text()
     )
     bad = subprocess.run([sys.executable, str(script), "--root", str(tmp_path / "none")],
@@ -266,15 +266,16 @@ def test_older_tables_are_judged_on_what_they_recorded():
     """Tables made before the paired differences were recorded are judged on E's 95% interval,
     older ones on |E| against its std; a recorded difference interval decides as in the report."""
     judged = load_script("results_index").judged
-    assert judged(0.10, 0.05, None, None) == "helps"
-    assert judged(-0.10, 0.05, None, None) == "hurts"
+    # each verdict not made by the paired test says what made it
+    assert judged(0.10, 0.05, None, None) == "helps (|E| beyond its std; no paired test recorded)"
+    assert judged(-0.10, 0.05, None, None) == "hurts (|E| beyond its std; no paired test recorded)"
     assert judged(0.03, 0.05, None, None) == "no clear effect (|E| within its std)"
     assert judged(0.03, None, None, None).endswith("higher with LHF")  # one run: its sign
     assert judged(None, None, None, None) == "undefined (no finite E)"
     # an interval decides over the std: an effect beyond 1 std whose interval spans 0 is none
     assert judged(-0.194, 0.098, (-0.482, 0.113), None) == "no clear effect (the 95% CI spans 0)"
-    assert judged(0.10, 0.50, (0.01, 0.19), None) == "helps"
-    assert judged(-0.1, 0.5, (-0.2, -0.01), None) == "hurts"
+    assert judged(0.10, 0.50, (0.01, 0.19), None) == "helps (E's 95% CI; no paired test recorded)"
+    assert judged(-0.1, 0.5, (-0.2, -0.01), None) == "hurts (E's 95% CI; no paired test recorded)"
     # the paired differences' interval decides over both, E undefined or not
     assert judged(2.37, 2.66, (-4.6, 11.6), (1.47, 5.61)) == "helps"
     assert judged(None, None, None, (4.07, 6.0)) == "helps"
