@@ -175,8 +175,14 @@ def _table(folder: Path, summary: dict) -> list[str]:
     rows = 0
     for cell in summary["cells"]:
         label = cell["env_id"] + ("" if cell["arm"] == "lhf" else f" ({cell['arm']})")
-        for r in cell["rows"]:
-            lines.append(_row(label, cell["env_id"], named(r, summary, cell["env_id"]), paper))
+        rows_named = [named(r, summary, cell["env_id"]) for r in cell["rows"]]
+        planned = any(" + plan" in r["backbone"] for r in rows_named)
+        for row in rows_named:
+            # the paper's DICP values are the reference planner's: beside `DICP + plan` only, or
+            # beside DICP where nothing planned; never beside a variant of ours
+            b = row["backbone"]
+            theirs = objective_of(b) != "dicp" or b == ("DICP + plan" if planned else "DICP")
+            lines.append(_row(label, cell["env_id"], row, paper if theirs else {}))
             rows += 1
     if not rows:
         lines = lines[:-2] + ["No cells: the table compared nothing."]

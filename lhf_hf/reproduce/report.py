@@ -81,10 +81,16 @@ def readings(exp: Experiment, cells: list[dict]) -> list[dict]:
     """Per cell and E-table column: the cell's ``label``, the ``column``, the paper's E in percent
     (``paper``) and, where the cell has that backbone, its compare ``row`` and ``verdict``."""
     out = []
+    # the paper's DICP values are with the reference planner: beside that column only, where the
+    # table has it (its other DICP columns are ours or the policy alone)
+    planned = "dicp" in exp.objectives and "plan" in exp.dicp_plan_modes()
+    reference = exp.column("dicp", "plan") if planned else None
     for cell in cells:
         rows = {r["backbone"]: r for r in cell["rows"]}
         for column in columns(exp):
             paper = (exp.paper.get(cell["env_id"]) or {}).get(objective_of(column))
+            if reference is not None and objective_of(column) == "dicp" and column != reference:
+                paper = None
             row = rows.get(column)
             found = {"label": _label(cell), "column": column, "paper": paper, "row": row}
             out.append({**found, "verdict": None if row is None else verdict(row)})

@@ -78,14 +78,15 @@ def test_index_lists_every_cell_with_paper_value_interval_verdict_and_hours(tmp_
     )
     recorded = " (as recorded: population std, interval of the mean per-run E)"
     assert (
-        f"| darkroom | DICP + plan, gated | +120.0 ± 30.0{recorded} | +50.0 .. +190.0 | +19.0 | - "
+        f"| darkroom | DICP + plan, gated | +120.0 ± 30.0{recorded} | +50.0 .. +190.0 | - | - "
         "| helps (E's 95% CI; no paired test recorded) | 4.33 -> 9.51 |" in text
     )
     assert (
         f"| darkroom | DPT | +237.0 ± 266.0{recorded} | -460.0 .. +1160.0 | - | - | helps "
         "| 1.49 -> 5.04 (difference +3.54, 95% CI +1.47 .. +5.61) |" in text
     )
-    assert "| darkroom | DICP | - | - | +19.0 | - | helps | 0.00 -> 5.04 (difference +5.04" in text
+    # the paper's DICP value (the reference planner's) beside `DICP + plan` only
+    assert "| darkroom | DICP | - | - | - | - | helps | 0.00 -> 5.04 (difference +5.04" in text
     # the paper's DICP value stands beside DICP + plan; a verdict's pipe is escaped in the cell
     assert (
         f"| darkroom | DICP + plan | -10.0 ± 50.0{recorded} | - | +19.0 | - | no clear effect (\\|E\\|"
