@@ -246,9 +246,9 @@ def _near_zero(env_id: str, baseline_mean: float) -> str | None:
     )
 
 
-def _std(x: np.ndarray) -> float:
-    """Sample std over runs (n - 1); 0.0 for one run (no spread measured)."""
-    return float(x.std(ddof=1)) if len(x) > 1 else 0.0
+def _std(x: np.ndarray) -> float | None:
+    """Sample std over runs (n - 1); None for one run (a spread is not measured by one)."""
+    return float(x.std(ddof=1)) if len(x) > 1 else None
 
 
 def _compare(baseline: list[str], lhf: list[str], out: str | Path | None) -> dict:
@@ -385,7 +385,7 @@ def _difference(r: dict) -> str:
 
 def markdown_table(rows: list[dict], env_id: str) -> str:
     def pm(m, s):
-        return f"{m:.2f} ± {s:.2f}"
+        return f"{m:.2f}" + ("" if s is None else f" ± {s:.2f}")
 
     lines = [
         f"| {env_id} | baseline | LHF | E (%) | final baseline | final LHF | runs "

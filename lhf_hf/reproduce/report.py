@@ -206,7 +206,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
     returns = []
     for cell in cells:
         for r in cell["rows"]:
-            means = [f"{r[f'{k}_mean']:.2f} ± {r[f'{k}_std']:.2f}" for k in ("baseline", "lhf")]
+            means = [f"{r[f'{k}_mean']:.2f}" + ("" if r.get(f"{k}_std") is None else
+                     f" ± {r[f'{k}_std']:.2f}") for k in ("baseline", "lhf")]  # fmt: skip
             ends = [f"{r[f'{k}_final']:.2f}" for k in ("baseline", "lhf")]
             returns.append([_label(cell), r["backbone"], *means, *ends, r["runs_baseline"]])
     header = ["env", "backbone", "baseline mean", "LHF mean", "baseline end", "LHF end", "runs"]

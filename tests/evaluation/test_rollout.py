@@ -300,6 +300,10 @@ def test_the_interval_of_e_is_of_the_e_printed_and_a_near_zero_baseline_is_flagg
     assert np.isclose(row["baseline_std"], 2.0) and np.isclose(
         row["lhf_std"], np.std([12, 13, 10], ddof=1)
     )
+    # one run a side measures no spread: no std (not 0), and the table prints none
+    one = compare(base[:1], lhf[:1])
+    assert one["rows"][0]["baseline_std"] is None and one["rows"][0]["lhf_std"] is None
+    assert "| AD | 10.00 | 12.00 |" in one["table"] and "± 0.00" not in one["table"]
     # the same differences on a baseline near zero (below 10 % of Darkroom's 16.5): flagged
     base = [fake_eval(tmp_path / f"z{i}", "ad", [v, v]) for i, v in enumerate([0.4, 0.5, 0.45])]
     lhf = [fake_eval(tmp_path / f"y{i}", "ad", [v, v]) for i, v in enumerate([0.6, 0.7, 0.8])]
