@@ -88,7 +88,7 @@ def attention_flops(c, pairs: int) -> int:
     return 4 * dh * c.num_attention_heads * c.num_hidden_layers * pairs
 
 
-def search_counts(model, L0: int, window: int, horizon: int) -> dict:
+def search_counts(model, L0: int, window: int, horizon: int, ties: str = "index") -> dict:
     """Per task: the search's imagined tokens, their matmul FLOPs (backbone, embeddings, heads)
     and its (query, key) pairs, dense (the torch engine) and visible (the floor)."""
     c = model.config
@@ -111,8 +111,8 @@ def search_counts(model, L0: int, window: int, horizon: int) -> dict:
         visible += nb * int(((L0 - lo) + plen + seen_new).sum())
         dense += n * (L0 + n_tree + n)
         flops += n * token_flops(c) + nb * A * 2 * D * (F_q + heads_q)  # Q tokens: embed, heads
-        if depth:
-            flops += nb * 2 * D * A  # the policy at each beam's T token
+        if depth and ties == "policy":
+            flops += nb * 2 * D * A  # the policy at each beam's T token orders its ties
         keep = min(beams, nb * A)
         if depth < horizon - 1:
             flops += keep * 2 * F_t * D  # the kept candidates' T tokens
@@ -190,7 +190,7 @@ def _top_ops(fn, rows: int = 8) -> list:
 
 @torch.no_grad()
 def measure(env: str, mode: str, batch: int | None, rollouts: int, threads: list, rounds: int,
-            profile_ops: bool) -> dict:  # fmt: skip
+            profile_ops: bool, ties: str = "index") -> dict:  # fmt: skip
     """One env: FLOPs, then per thread count the rounds of timings; ``before``: the model's own
     attention for the context's window (engine hf) and the torch tree engine; ``after``: the
     attention kernel for the window and the kernel tree engine."""
@@ -222,10 +222,12 @@ def measure(env: str, mode: str, batch: int | None, rollouts: int, threads: list
     _, L0, _ = ctx.snapshot()
 
     def search(engine, depth=d_max):
-        return lambda: beam_search(model, ctx, states, logits, depth, c.plan_beams, engine=engine)
+        return lambda: beam_search(
+            model, ctx, states, logits, depth, c.plan_beams, engine=engine, ties=ties
+        )
 
     # FLOPs per task, the analytic counts checked against FlopCounterMode's
-    counts = {d: search_counts(model, L0, ctx.max_tokens, d) for d in sorted({1, d_max})}
+    counts = {d: search_counts(model, L0, ctx.max_tokens, d, ties) for d in sorted({1, d_max})}
     fc = free_counts(model, ctx)
     counted = {
         "search": counted_matmul_flops(search("torch")) / B,
@@ -397,6 +399,12 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=None, help="batch size instead of tasks x rollouts")
     p.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     p.add_argument("--rounds", type=int, default=3)
+    p.add_argument(
+        "--ties",
+        default="index",
+        choices=["index", "policy"],
+        help="the beam search's tie order below depth 0 (index: the reference's)",
+    )
     p.add_argument("--profile", action="store_true", help="the top torch ops of each path")
     p.add_argument("--json", default=None)
     args = p.parse_args()
@@ -413,7 +421,7 @@ def main() -> None:
     }
     for env in args.envs:
         out["envs"][env] = measure(env, args.mode, args.batch, args.rollouts, args.threads,
-                                   args.rounds, args.profile)  # fmt: skip
+                                   args.rounds, args.profile, args.ties)  # fmt: skip
         out["load_average_end"] = os.getloadavg()
         if args.json:  # after every env: a long run cut short keeps what it measured
             write_json_atomic(out, args.json)
