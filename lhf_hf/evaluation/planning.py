@@ -170,15 +170,15 @@ def beam_search(
                 }
             )
         score = beam_score.repeat_interleave(A, 1) + r_hat  # (B, nb * A)
-        keys = policy
-        if depth == 0 and order == "sample":  # Gumbel-max: argsort of logits + Gumbel noise is a
-            u = torch.rand(policy.shape, generator=generator).clamp_(1e-20, 1.0)  # permutation
-            keys = policy - torch.log(-torch.log(u))  # drawn from the policy without replacement
-        rank_in_beam = torch.argsort(torch.argsort(-keys, dim=2, stable=True), dim=2)  # (B, nb, A)
         if depth > 0 and ties == "index":  # beam-major, actions by index: the reference's layout
             policy_rank = torch.arange(nb * A).expand(B, nb * A)
         else:  # depth 0 (one beam): the sampled or argmax order; `policy`: interleaved over beams
-            policy_rank = (rank_in_beam * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
+            keys = policy
+            if depth == 0 and order == "sample":  # Gumbel-max: argsort of logits + Gumbel noise
+                u = torch.rand(policy.shape, generator=generator).clamp_(1e-20, 1.0)  # is a
+                keys = policy - torch.log(-torch.log(u))  # permutation drawn from the policy
+            rank = torch.argsort(torch.argsort(-keys, dim=2, stable=True), dim=2)  # (B, nb, A)
+            policy_rank = (rank * nb + torch.arange(nb)[None, :, None]).view(B, nb * A)
         first = (
             acts.reshape(B, nb * A) if beam_first is None else beam_first.repeat_interleave(A, 1)
         )

@@ -148,7 +148,7 @@ def plan_stages(exp: Experiment, work: Path, progress: bool = True) -> tuple[lis
                         ec = {k: v for k, v in eval_cfg.to_dict().items() if k != "out"}
                         if ec["plan_reward_threshold"] is None:  # the hash from before the field
                             del ec["plan_reward_threshold"]
-                        if not ec["plan"] or not get_spec(env).is_discrete:
+                        if not ec["plan"] or not spec.is_discrete:
                             del ec["plan_ties"]  # no beam search: the hash from before the field
                         ec["model"] = tr.hash
 
