@@ -16,6 +16,10 @@ import numpy as np
 
 from lhf_hf.errors import OutOfRangeError, UnknownNameError, UserError
 
+# Tables report run r on split seed r, for at most this many runs (the main table's AD and DPT
+# cells have 10): validation tasks are never a test task of these splits (validation_split).
+REPORTED_SPLITS = 10
+
 
 @dataclass(frozen=True)
 class EnvSpec:
@@ -127,16 +131,28 @@ class EnvSpec:
         return min(self.num_test_tasks, self.num_train_tasks // 4)
 
     def validation_split(self, split_seed: int) -> tuple[list[int], list[int]]:
-        """(fit, validation): split ``split_seed``'s train tasks, the last ``num_validation_tasks``
-        of them (in the split's own order, shuffled for gridworlds) held out for tuning.
+        """(fit, validation): split ``split_seed``'s train tasks less ``num_validation_tasks`` of
+        them held out for tuning, and those.
 
         Every tuning choice (budgets, gates, weights, rollouts) is made by training on the fit
-        tasks and evaluating on the validation tasks; the test tasks stay for reporting.  The
-        train split itself is unchanged, so reported runs still train on every train task.
+        tasks and evaluating on the validation tasks; the test tasks stay for reporting.  A table's
+        run ``r`` reports on split ``r``'s test tasks, so validation tasks are drawn (seeded by the
+        split) only from tasks that are a test task of no reported split (``REPORTED_SPLITS``) nor
+        of this one: a choice made on them never saw a task any table reports.  The train split
+        itself is unchanged, so reported runs still train on every train task.  An env with too few
+        such tasks gets as many as there are (``lhf envs`` shows the count).  Seeded tasks
+        (``seeded_tasks``, Meta-World) are drawn anew by each split: only the split's own test
+        tasks are excluded.
         """
-        train, _ = self.split(split_seed)
-        k = self.num_validation_tasks
-        return list(train[:-k]), list(train[-k:])
+        train, test = self.split(split_seed)
+        reported = set(test)
+        if not self.seeded_tasks:  # seeded tasks (Meta-World) differ between splits: no overlap
+            reported = reported.union(*(self.split(s)[1] for s in range(REPORTED_SPLITS)))
+        pool = [t for t in sorted(train) if t not in reported]
+        k = min(self.num_validation_tasks, len(pool))
+        validation = random.Random(split_seed).sample(pool, k)
+        held = set(validation)
+        return [t for t in train if t not in held], validation
 
     @property
     def is_discrete(self) -> bool:
@@ -172,7 +188,7 @@ class EnvSpec:
             "num_tasks": self.num_tasks,
             "num_train_tasks": self.num_train_tasks,
             "num_test_tasks": self.num_test_tasks,
-            "num_validation_tasks": self.num_validation_tasks,
+            "num_validation_tasks": len(self.validation_split(0)[1]),
             "state_space": describe_space(self.state_space),
             "action_space": describe_space(self.action_space),
             "optimal_return": opt,

@@ -4,7 +4,7 @@ import random
 
 import pytest
 
-from lhf_hf.envs import get_spec, list_env_ids, make, split_part, task_split
+from lhf_hf.envs import EnvSpec, get_spec, list_env_ids, make, split_part, task_split
 
 EXPECTED_SPLITS = {
     "darkroom": (73, 8),
@@ -119,13 +119,50 @@ def test_validation_tasks_are_held_out_train_tasks(env_id):
     assert split_part(env_id, "test", 0) == test and split_part(env_id, "train", 0) == train
 
 
-def test_validation_tasks_are_the_last_of_the_shuffled_train_tasks():
-    # Darkroom split 0 (the reference's shuffle): the last 8 of the 73 train tasks, by hand.
-    tasks = list(range(81))
-    random.Random(0).shuffle(tasks)
-    assert split_part("darkroom", "validation", 0) == tasks[65:73]
-    assert split_part("darkroom", "validation", 0) == [12, 68, 36, 17, 64, 27, 45, 61]
+def test_validation_tasks_are_never_a_reported_split_s_test_task():
+    # A table's run r reports on split r's test tasks (r < REPORTED_SPLITS): a choice made on the
+    # validation tasks of any split must not have looked at one of them.  Darkroom by hand: the
+    # test tasks of splits 0..9 (the reference's shuffles) leave 26 of the 81 goals; split 0 draws
+    # its 8 validation goals from those with random.Random(0).sample.
+    from lhf_hf.envs.registry import REPORTED_SPLITS
+
+    assert REPORTED_SPLITS == 10
+    reported = set()
+    for s in range(10):
+        order = list(range(81))
+        random.Random(s).shuffle(order)
+        reported |= set(order[73:])
+    assert len(reported) == 81 - 26
+    train0 = task_split("darkroom", 0)[0]
+    pool = [t for t in sorted(train0) if t not in reported]
+    assert len(pool) == 26
+    validation = random.Random(0).sample(pool, 8)
+    assert split_part("darkroom", "validation", 0) == validation
+    assert sorted(validation) == [2, 35, 42, 44, 54, 55, 77, 80]
+    assert split_part("darkroom", "fit", 0) == [t for t in train0 if t not in set(validation)]
+    # every gridworld, every reported split and one beyond them (its own test tasks excluded too)
+    for env_id in EXPECTED_SPLITS:
+        spec = get_spec(env_id)
+        tests = [set(task_split(env_id, s)[1]) for s in range(11)]
+        for s in range(11):
+            train, validation = task_split(env_id, s)[0], split_part(env_id, "validation", s)
+            assert len(validation) == spec.num_validation_tasks  # the pool is large enough
+            assert set(validation) <= set(train)
+            assert not set(validation) & set().union(*tests[:10], tests[s])
     assert split_part("darkroom", "validation", 1) != split_part("darkroom", "validation", 0)
+
+
+def test_an_env_with_too_few_unreported_tasks_gets_fewer_validation_tasks():
+    # 10 tasks, 2 test tasks per split: the test tasks of splits 0..9 cover all but a few
+    from lhf_hf.envs.registry import shuffled_split
+
+    spec = EnvSpec(**{**get_spec("darkroom").__dict__, "env_id": "tiny", "num_tasks": 10,
+                      "num_train_tasks": 8, "split": lambda s: shuffled_split(10, 8, s)})  # fmt: skip
+    reported = set().union(*(spec.split(s)[1] for s in range(10)))
+    fit, validation = spec.validation_split(0)
+    assert len(validation) == min(2, 10 - len(reported))
+    assert not set(validation) & reported and sorted(fit + validation) == sorted(spec.split(0)[0])
+    assert spec.summary()["num_validation_tasks"] == len(validation)
 
 
 def test_unknown_split_part_is_named():

@@ -27,6 +27,26 @@ def test_the_committed_cards_are_what_lhf_writes_of_what_the_specs_collect():
     assert cards.stale() == []
 
 
+def test_the_kept_task_tables_name_the_registry_s_split():
+    """Each kept ``meta/tasks.parquet`` marks train, validation and test tasks as the registry
+    splits them now (the validation rule changing leaves no card naming the old goals)."""
+    import pyarrow.parquet as pq
+
+    from lhf_hf.envs import get_spec
+
+    kept = [item for item in cards.PUBLISHED if (cards.ROOT / item.name).is_dir()]
+    assert kept
+    for item in kept:
+        meta = cards.ROOT / item.name
+        lhf = json.loads((meta / C.LHF_INFO_PATH).read_text())
+        spec, seed = get_spec(lhf["env_id"]), lhf["split_seed"]
+        train, validation = set(spec.split(seed)[0]), set(spec.validation_split(seed)[1])
+        table = pq.read_table(meta / C.TASKS_PATH).to_pydict()
+        want = [("validation" if t in validation else "train") if t in train else "test"
+                for t in table["task_id"]]  # fmt: skip
+        assert table["split"] == want, item.name
+
+
 def test_the_listed_collect_command_makes_the_kept_dataset():
     """Each card's ``lhf collect`` command (dataset_cards/README.md) parses to the config whose
     identity the kept dataset records: the same fingerprint, collected again."""
