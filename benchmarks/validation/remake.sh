@@ -1,119 +1,153 @@
 #!/usr/bin/env bash
 # The `cpu` presets' validation choices, made on the validation goals (EnvSpec.validation_split:
-# train goals of split 0 that are a test goal of no split 0-9, so no reported goal is looked at).
+# train goals of a split that are a test goal of no split 0-9, so no reported goal is looked at).
 #
 #   benchmarks/validation/remake.sh [PART ...]     # default: every part, in this order
 #   benchmarks/validation/remake.sh --dry-run ...  # print the commands only
 #
-# Parts (each writes results/validation/PART/ and is skipped once that holds its result, so the
-# script resumes part by part; data and models go to data/ and runs/validation-remake/, rebuilt
-# when missing: a part can run on another machine than the one before it; trainings resume from
-# their last checkpoint):
+# A part is done when results/validation/PART/goals.json names today's validation goals
+# (benchmarks/validation/goals.py writes it last); a done part is skipped, an unfinished one goes
+# on from what its work folder holds (runs/validation-remake: records, trainings from their last
+# checkpoint, evaluations on today's goals), so the script resumes and a part can finish on
+# another machine than the one it started on.  Each part replaces its records under
+# results/validation/PART; the README or spec text that reads them is updated by hand.
 #   data      split 0's fit goals (its train goals less the validation goals), paper protocol,
-#             100 histories each; every other part makes it first when it is missing
+#             100 histories each (data/validation-fit); every part that trains makes it first
 #   lr        AD at 3,000 cosine steps, 3 models per learning rate (1e-3, 3e-3, 1e-2), 4 rollouts
-#             of 100 episodes on each validation goal, at 1,000 / 2,000 / 3,000 steps
-#             (bench_icrl_curve.py, then compare_curves.py); ~1.2 h of stage time
+#             of 100 episodes on each validation goal at 1,000 / 2,000 / 3,000 steps
+#             (bench_icrl_curve.py, compare_curves.py); ~1.2 h of stage time
 #   rollouts  one rollout's noise against the spread between trained models, from lr's 3e-3
-#             models (eval_noise.py); minutes
-#   dicp      DICP (reference reward loss) with its cosine over 2,000, 4,000 and 8,000 steps, each
-#             evaluated at its end without planning, with the reference planner, gated (ours) and
-#             gated with a reward threshold of 0.99 (ours), 4 rollouts of 100 episodes
-#             (dicp_convergence.py); ~5 h of stage time, the longest part
-# One part per core: `remake.sh data`, then `remake.sh lr rollouts` and `remake.sh dicp` side by side.
+#             models (eval_noise.py); minutes once lr is done
+#   dicp      DICP (the reference's reward loss) with its cosine over 2,000, 4,000 and 8,000
+#             steps, each evaluated at its end without planning, with the reference planner,
+#             gated (ours) and gated with a reward threshold of 0.99 (ours), 4 rollouts of 100
+#             episodes (dicp_convergence.py -> results/validation/dicp_steps); ~5 h of stage time
+#   main-job  the README's main job on each run's validation goals (main-job.yaml, runs 0-2),
+#             4 and 1 rollouts per goal, on this CPU and with the AVX2 kernels and code paths
+#             (another CPU's draws); ~1 h
+# One part per core: `remake.sh data`, then e.g. `remake.sh lr rollouts main-job` and
+# `remake.sh dicp` side by side.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 dry=0
 if [ "${1:-}" = "--dry-run" ]; then dry=1; shift; fi
 parts=("$@")
-[ ${#parts[@]} -gt 0 ] || parts=(data lr rollouts dicp)
+[ ${#parts[@]} -gt 0 ] || parts=(data lr rollouts dicp main-job)
 export OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE
 data=data/validation-fit
 work=runs/validation-remake
 out=results/validation
+goals="python benchmarks/validation/goals.py"
 
 run() {  # print (quoted as a shell reads it back), then run unless --dry-run
   printf '+'; printf ' %q' "$@"; echo
   [ "$dry" = 1 ] || "$@"
 }
 
-current() {  # FILE exists and every task list it records is today's validation goals
-  [ -f "$1" ] && python - "$1" <<'PY'
-import json, sys
-from lhf_hf.envs import split_part
-want = sorted(split_part("darkroom", "validation", 0))
-def lists(x):
-    if isinstance(x, dict):
-        for k, v in x.items():
-            yield from ([v] if k == "tasks" else lists(v))
-    elif isinstance(x, list):
-        for v in x:
-            yield from lists(v)
-found = list(lists(json.load(open(sys.argv[1]))))
-sys.exit(0 if found and all(sorted(t) == want for t in found) else 1)
-PY
+done_part() {  # results/validation/$1 holds a finished part made on today's goals
+  $goals check "$out/$1" "${@:2}"
 }
 
-fit_data() {  # split 0's fit goals: its train goals less the validation goals
+fit_data() {
   [ -f "$data/meta/info.json" ] || run lhf collect darkroom --tasks fit --histories 100 \
     --protocol paper --collector batched --ppo-backend kernel --out "$data"
 }
 
 part_lr() {
+  done_part lr && return
   fit_data
-  local lr again
+  local lr rec again
   for lr in 0.001 0.003 0.01; do
-    current "$out/lr/ad-lr$lr/curve.json" && continue
-    # made in the work folder (resumed from there), then copied over the earlier record
+    rec="$work/lr/ad-lr$lr"
     again=()
-    [ -f "$work/lr/ad-lr$lr/curve.json" ] && again=(--resume)
+    if [ -f "$rec/curve.json" ]; then
+      if $goals check "$rec/curve.json"; then again=(--resume); else run rm -rf "$rec"; fi
+    fi
     run python benchmarks/bench_icrl_curve.py --dataset "$data" --objectives ad --episodes 100 \
       --seeds 0 1 2 3 --train-seeds 0 1 2 --steps 3000 --every-steps 1000 --lr "$lr" \
       --batch-size 64 --preset paper --attention-kernel kernel --tasks validation \
-      --out "$work/lr/ad-lr$lr" --work "$work/lr/models" "${again[@]}"
-    run rm -rf "$out/lr/ad-lr$lr"
-    run mkdir -p "$out/lr"
-    run cp -r "$work/lr/ad-lr$lr" "$out/lr/ad-lr$lr"
+      --out "$rec" --work "$work/lr/models" "${again[@]}"
   done
+  run rm -rf "$out/lr"
+  run mkdir -p "$out/lr"
+  for lr in 0.001 0.003 0.01; do run cp -r "$work/lr/ad-lr$lr" "$out/lr/ad-lr$lr"; done
   run python benchmarks/compare_curves.py "$out/lr/ad-lr0.003" "$out/lr/ad-lr0.001" \
     "$out/lr/ad-lr0.01" --labels "lr 3e-3" "lr 1e-3" "lr 1e-2" \
     --title "AD's learning rate, validation goals" --out "$out/lr"
+  run $goals write "$out/lr"
 }
 
 part_rollouts() {
-  current "$out/lr/ad-lr0.003/curve.json" || part_lr
+  done_part rollouts && return
+  part_lr
+  run rm -rf "$out/rollouts"
   run python benchmarks/eval_noise.py "$out/lr/ad-lr0.003" --out "$out/rollouts"
+  run $goals write "$out/rollouts"
 }
 
 part_dicp() {
+  done_part dicp_steps && return
   fit_data
-  local steps mode evals="$work/dicp/evals"
+  local steps mode model again flags evals="$work/dicp/evals"
   for steps in 2000 4000 8000; do
-    local model="$work/dicp/dicp-$steps"
-    local again=()
-    [ -d "$model" ] && again=(--resume)
-    [ -f "$model/model.safetensors" ] || run lhf train --dataset "$data" --objective dicp \
-      --preset paper --max-steps "$steps" --batch-size 64 --lr 3e-3 --reward-weighting data \
-      --state-encoding coordinates --seed 0 --save-steps 500 "${again[@]}" --out "$model"
+    model="$work/dicp/dicp-$steps"
+    if [ ! -f "$model/model.safetensors" ]; then
+      again=()
+      if compgen -G "$model/checkpoint-*" >/dev/null; then again=(--resume)
+      elif [ -d "$model" ]; then again=(--overwrite); fi
+      run lhf train --dataset "$data" --objective dicp --preset paper --max-steps "$steps" \
+        --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding coordinates \
+        --seed 0 --save-steps 500 --no-progress "${again[@]}" --out "$model"
+    fi
     for mode in policy ref refgated refgatedthreshold99; do
-      local flags=()
       case $mode in
+        policy) flags=() ;;
         ref) flags=(--plan) ;;
         refgated) flags=(--plan --plan-gate reward_seen) ;;
         refgatedthreshold99) flags=(--plan --plan-gate reward_seen --plan-reward-threshold 0.99) ;;
       esac
-      current "$evals/step-$steps-$mode/eval_results.json" || run lhf evaluate --model "$model" \
-        --tasks validation --episodes 100 --rollouts 4 --seed 0 "${flags[@]}" \
-        --out "$evals/step-$steps-$mode"
+      $goals check "$evals/step-$steps-$mode/eval_results.json" && continue
+      [ -d "$evals/step-$steps-$mode" ] && flags+=(--overwrite)
+      run lhf evaluate --model "$model" --tasks validation --episodes 100 --rollouts 4 --seed 0 \
+        --no-progress "${flags[@]}" --out "$evals/step-$steps-$mode"
     done
   done
+  run rm -rf "$out/dicp_steps"
   run python benchmarks/dicp_convergence.py --evals "$evals" --out "$out/dicp_steps"
+  run $goals write "$out/dicp_steps"
+}
+
+part_main_job() {
+  done_part main-job --splits 0 1 2 && return
+  local isa rollouts preset name
+  local -a avx2=(env LHF_HF_KERNEL_MARCH=haswell ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2)
+  for isa in avx512 avx2; do
+    for rollouts in 4 1; do
+      preset=quick
+      [ "$rollouts" = 1 ] && preset=cpu
+      name="$isa-rollouts$rollouts"
+      if [ "$isa" = avx2 ]; then
+        run "${avx2[@]}" lhf reproduce benchmarks/validation/main-job.yaml --preset "$preset" \
+          --jobs 2 --no-progress --work "$work/main-job-$isa" --out "$work/main-job/$name"
+      else
+        run lhf reproduce benchmarks/validation/main-job.yaml --preset "$preset" --jobs 2 \
+          --no-progress --work "$work/main-job-$isa" --out "$work/main-job/$name"
+      fi
+    done
+  done
+  for name in avx512-rollouts4 avx512-rollouts1 avx2-rollouts4 avx2-rollouts1; do
+    run rm -rf "$out/main-job/$name"
+    run mkdir -p "$out/main-job"
+    run cp -r "$work/main-job/$name" "$out/main-job/$name"
+  done
+  run $goals write "$out/main-job" --splits 0 1 2
 }
 
 for part in "${parts[@]}"; do
   case $part in
     data) fit_data ;;
     lr | rollouts | dicp) "part_$part" ;;
-    *) echo "unknown part '$part': data, lr, rollouts or dicp" >&2; exit 2 ;;
+    main-job) part_main_job ;;
+    *) echo "unknown part '$part': data, lr, rollouts, dicp or main-job" >&2; exit 2 ;;
   esac
 done
