@@ -9,7 +9,9 @@ snapshot it also gives the planner's gain over the policy within goals: each val
 return (mean over its rollouts) with planning minus without, and the 95 % t-interval of that
 difference over the goals, so a pooled mean is never the only evidence.
 
-The runs it reads were made with (split 0; validation goals = split 0's held-out train goals)::
+The committed runs it read were made with these commands on the earlier validation goals of split
+0 (12, 17, 27, 36, 45, 61, 64, 68: results/FINDINGS.md); the same commands now use the current
+ones (``benchmarks/validation/remake.sh dicp`` runs this script on its own trainings)::
 
     lhf collect darkroom --tasks fit --histories 100 --protocol paper --collector batched \
         --ppo-backend kernel --out data/dr100fit
