@@ -21,12 +21,15 @@
 #   dicp      DICP (the reference's reward loss) with its cosine over 2,000, 4,000 and 8,000
 #             steps, each evaluated at its end without planning, with the reference planner,
 #             gated (ours) and gated with a reward threshold of 0.99 (ours), 4 rollouts of 100
-#             episodes (dicp_convergence.py -> results/validation/dicp_steps); ~5 h of stage time
+#             episodes, then dicp_convergence.py; ~4.5 h of stage time.  Its evaluations are kept in
+#             results/validation/dicp_steps/step-N-MODE as each finishes, and dicp-2000, dicp-4000
+#             and dicp-8000 are parts of their own (~1, ~1.4 and ~2.1 h): they fit one per
+#             machine-session and run side by side
 #   main-job  the README's main job on each run's validation goals (main-job.yaml, runs 0-2),
 #             4 and 1 rollouts per goal, on this CPU and with the AVX2 kernels and code paths
 #             (another CPU's draws); ~1 h
-# One part per core: `remake.sh data`, then e.g. `remake.sh lr rollouts main-job` and
-# `remake.sh dicp` side by side.
+# One part per core: `remake.sh data`, then e.g. `remake.sh lr rollouts main-job dicp-2000` and
+# `remake.sh dicp-8000` side by side, then `remake.sh dicp-4000 dicp` (the curve once all three are in).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 dry=0
@@ -85,35 +88,41 @@ part_rollouts() {
   run $goals write "$out/rollouts"
 }
 
-part_dicp() {
-  done_part dicp_steps && return
-  fit_data
-  local steps mode model again flags evals="$work/dicp/evals"
-  for steps in 2000 4000 8000; do
-    model="$work/dicp/dicp-$steps"
-    if [ ! -f "$model/model.safetensors" ]; then
-      again=()
-      if compgen -G "$model/checkpoint-*" >/dev/null; then again=(--resume)
-      elif [ -d "$model" ]; then again=(--overwrite); fi
-      run lhf train --dataset "$data" --objective dicp --preset paper --max-steps "$steps" \
-        --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding coordinates \
-        --seed 0 --save-steps 500 --no-progress "${again[@]}" --out "$model"
-    fi
-    for mode in policy ref refgated refgatedthreshold99; do
-      case $mode in
-        policy) flags=() ;;
-        ref) flags=(--plan) ;;
-        refgated) flags=(--plan --plan-gate reward_seen) ;;
-        refgatedthreshold99) flags=(--plan --plan-gate reward_seen --plan-reward-threshold 0.99) ;;
-      esac
-      $goals check "$evals/step-$steps-$mode/eval_results.json" && continue
-      [ -d "$evals/step-$steps-$mode" ] && flags+=(--overwrite)
-      run lhf evaluate --model "$model" --tasks validation --episodes 100 --rollouts 4 --seed 0 \
-        --no-progress "${flags[@]}" --out "$evals/step-$steps-$mode"
-    done
+dicp_steps() {  # one DICP, its cosine over $1 steps, and its 4 evaluations (kept in results/)
+  local steps=$1 mode again flags model="$work/dicp/dicp-$1" evals="$out/dicp_steps"
+  local -a modes=(policy ref refgated refgatedthreshold99)
+  for mode in "${modes[@]}"; do
+    $goals check "$evals/step-$steps-$mode/eval_results.json" || break
+    [ "$mode" = "${modes[-1]}" ] && return
   done
-  run rm -rf "$out/dicp_steps"
-  run python benchmarks/dicp_convergence.py --evals "$evals" --out "$out/dicp_steps"
+  fit_data
+  if [ ! -f "$model/model.safetensors" ]; then
+    again=()
+    if compgen -G "$model/checkpoint-*" >/dev/null; then again=(--resume)
+    elif [ -d "$model" ]; then again=(--overwrite); fi
+    run lhf train --dataset "$data" --objective dicp --preset paper --max-steps "$steps" \
+      --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding coordinates \
+      --seed 0 --save-steps 500 --no-progress "${again[@]}" --out "$model"
+  fi
+  for mode in "${modes[@]}"; do
+    case $mode in
+      policy) flags=() ;;
+      ref) flags=(--plan) ;;
+      refgated) flags=(--plan --plan-gate reward_seen) ;;
+      refgatedthreshold99) flags=(--plan --plan-gate reward_seen --plan-reward-threshold 0.99) ;;
+    esac
+    $goals check "$evals/step-$steps-$mode/eval_results.json" && continue
+    [ -d "$evals/step-$steps-$mode" ] && flags+=(--overwrite)
+    run lhf evaluate --model "$model" --tasks validation --episodes 100 --rollouts 4 --seed 0 \
+      --no-progress "${flags[@]}" --out "$evals/step-$steps-$mode"
+  done
+}
+
+part_dicp() {  # the three cosine lengths (each a part of its own: dicp-2000 ...), then the curve
+  done_part dicp_steps && return
+  local steps
+  for steps in 2000 4000 8000; do dicp_steps "$steps"; done
+  run python benchmarks/dicp_convergence.py --evals "$out/dicp_steps" --out "$out/dicp_steps"
   run $goals write "$out/dicp_steps"
 }
 
@@ -147,7 +156,8 @@ for part in "${parts[@]}"; do
   case $part in
     data) fit_data ;;
     lr | rollouts | dicp) "part_$part" ;;
+    dicp-2000 | dicp-4000 | dicp-8000) dicp_steps "${part#dicp-}" ;;
     main-job) part_main_job ;;
-    *) echo "unknown part '$part': data, lr, rollouts, dicp or main-job" >&2; exit 2 ;;
+    *) echo "unknown part '$part': data, lr, rollouts, dicp[-2000|-4000|-8000] or main-job" >&2; exit 2 ;;
   esac
 done
