@@ -23,8 +23,8 @@
 #             gated (ours) and gated with a reward threshold of 0.99 (ours), 4 rollouts of 100
 #             episodes, then dicp_convergence.py; ~4.5 h of stage time.  Its evaluations are kept in
 #             results/validation/dicp_steps/step-N-MODE as each finishes, and dicp-2000, dicp-4000
-#             and dicp-8000 are parts of their own (~1, ~1.4 and ~2.1 h): they fit one per
-#             machine-session and run side by side
+#             and dicp-8000 are parts of their own (~1, ~1.4 and ~2.1 h): each fits a short stay on
+#             one machine, and they run side by side
 #   main-job  the README's main job on each run's validation goals (main-job.yaml, runs 0-2),
 #             4 and 1 rollouts per goal, on this CPU and with the AVX2 kernels and code paths
 #             (another CPU's draws); ~1 h
