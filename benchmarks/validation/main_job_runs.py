@@ -1,21 +1,20 @@
-"""How many runs the main job needs for a verdict that does not depend on the CPU, from its
-validation records (``remake.sh main-job``: ``lhf reproduce benchmarks/validation/main-job.yaml``
-on this CPU and on emulated AVX2, each a ``results.json``).
+"""How many runs and rollouts the main job needs for a verdict that does not depend on the CPU,
+from its validation records (``remake.sh main-job``: ``lhf reproduce
+benchmarks/validation/main-job.yaml`` on this CPU and on emulated AVX2, each a ``results.json``).
 
-    python benchmarks/validation/main_job_runs.py results/validation/main-job/avx*-runs* \\
-        --power-from results/validation/main-job/avx*-runs5-rollouts4 \\
-        --run-seconds 103 --budget 600 --out results/validation/main-job
+    python benchmarks/validation/main_job_runs.py results/validation/main-job/avx*-rollouts* \\
+        --run-seconds 4=103 16=111 --budget 600 --out results/validation/main-job
 
 Per record: the runs' paired return differences (LHF - baseline), their mean and 95% interval,
-and the verdict the report prints (``reproduce.report.verdict``).  From the ``--power-from``
-records (two CPUs' draws of the same runs): the mean difference ``mu`` and the pooled sample std
-``sigma`` of one run's difference, then for n runs the paired t-test's power
+and the verdict the report prints (``reproduce.report.verdict``).  Per rollout count R (the
+records of both CPUs at R, two draws of the same runs): the mean difference ``mu`` and the pooled
+sample std ``sigma`` of one run's difference, then for n runs the paired t-test's power
 (two-sided 5 %, noncentral t with n - 1 degrees of freedom and noncentrality mu / sigma * sqrt(n))
 and the chance that two CPUs' independent draws read the same verdict, power^2 + (1 - power)^2
-(an effect of this size read "helps" on both or on neither).  Runs whose projected wall time
-(``--run-seconds`` x n, the main job's measured seconds per run at ``--jobs 2``) exceeds
-``--budget`` are marked.  The choice: the fewest runs within the budget whose agreement is >= 0.9,
-else the most within the budget.  Writes ``runs.json`` and ``runs.md``.
+(an effect of this size read "helps" on both or on neither).  ``--run-seconds R=S`` is the main
+job's wall time per run at --jobs 2 with R rollouts; n runs whose n x S exceeds ``--budget`` are
+marked.  The choice: of the (R, n) within the budget whose agreement is >= 0.9, the fastest; if
+none, the one that agrees most.  Writes ``runs.json`` and ``runs.md``.
 """
 
 from __future__ import annotations
@@ -34,15 +33,16 @@ AGREEMENT = 0.9  # the chance two CPUs read the same verdict that the choice ask
 RUNS = range(3, 11)
 
 
-def row_of(folder: Path) -> dict:
-    """The one AD row of a validation record (``results.json``)."""
+def read(folder: Path) -> tuple[int, dict]:
+    """A validation record's rollouts per goal and its one AD row (``results.json``)."""
     try:
         data = json.loads((folder / "results.json").read_text())
         (cell,) = data["cells"]
         (row,) = cell["rows"]
-    except (OSError, ValueError, KeyError) as err:
-        raise SystemExit(f"{folder}: not a main-job validation record ({err})") from err
-    return row
+        rollouts = int(data["experiment"]["evaluate"]["rollouts"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise SystemExit(f"{folder}: not a main-job validation record ({err!r})") from err
+    return rollouts, row
 
 
 def power(mu: float, sigma: float, n: int) -> float:
@@ -56,72 +56,91 @@ def power(mu: float, sigma: float, n: int) -> float:
     return float(up + (down if np.isfinite(down) else 0.0))
 
 
+def seconds(pairs: list[str]) -> dict[int, float]:
+    """``["4=103", "16=111"]`` -> ``{4: 103.0, 16: 111.0}``."""
+    try:
+        return {int(k): float(v) for k, v in (p.split("=") for p in pairs)}
+    except ValueError as err:
+        raise SystemExit(f"--run-seconds takes ROLLOUTS=SECONDS pairs, not {pairs}") from err
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("records", nargs="+", type=Path)
-    p.add_argument("--power-from", nargs="+", type=Path, required=True)
-    p.add_argument("--run-seconds", type=float, required=True)
+    p.add_argument("--run-seconds", nargs="+", required=True, metavar="ROLLOUTS=SECONDS")
     p.add_argument("--budget", type=float, default=600.0)
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args()
+    per_run = seconds(args.run_seconds)
 
-    records = []
+    records, groups = [], {}
     for folder in args.records:
-        row = row_of(folder)
+        rollouts, row = read(folder)
         d = np.array(row["lhf_run_means"]) - np.array(row["baseline_run_means"])  # (runs,)
+        groups.setdefault(rollouts, []).append(d)
         records.append(
-            {"record": folder.name, "runs": len(d), "differences": d.round(3).tolist(),
-             "diff": row["diff"], "diff_ci95": row["diff_ci95"], "verdict": verdict(row)}
+            {"record": folder.name, "rollouts": rollouts, "runs": len(d),
+             "differences": d.round(3).tolist(), "diff": row["diff"],
+             "diff_ci95": row["diff_ci95"], "verdict": verdict(row)}
         )  # fmt: skip
-    diffs = [np.array(row_of(f)["lhf_run_means"]) - np.array(row_of(f)["baseline_run_means"])
-             for f in args.power_from]  # fmt: skip
-    mu = float(np.concatenate(diffs).mean())
-    dof = sum(len(d) - 1 for d in diffs)
-    sigma = float(np.sqrt(sum((len(d) - 1) * d.var(ddof=1) for d in diffs) / dof))
-    table = []
-    for n in RUNS:
-        pw = power(mu, sigma, n)
-        table.append(
-            {"runs": n, "power": pw, "agreement": pw**2 + (1 - pw) ** 2,
-             "wall_s": args.run_seconds * n, "fits": args.run_seconds * n <= args.budget}
-        )  # fmt: skip
+    missing = sorted(set(groups) - set(per_run))
+    if missing:
+        raise SystemExit(f"--run-seconds names no wall time for {missing} rollouts")
+    table, spread = [], {}
+    for rollouts, diffs in sorted(groups.items()):
+        mu = float(np.concatenate(diffs).mean())
+        dof = sum(len(d) - 1 for d in diffs)
+        if dof < 1:
+            raise SystemExit(f"{rollouts} rollouts: no record with 2+ runs to measure a spread")
+        sigma = float(np.sqrt(sum((len(d) - 1) * d.var(ddof=1) for d in diffs) / dof))
+        spread[rollouts] = {"mu": mu, "sigma": sigma, "dof": dof, "records": len(diffs)}
+        for n in RUNS:
+            pw = power(mu, sigma, n)
+            wall = per_run[rollouts] * n
+            table.append(
+                {"rollouts": rollouts, "runs": n, "power": pw, "agreement": pw**2 + (1 - pw) ** 2,
+                 "wall_s": wall, "fits": wall <= args.budget}
+            )  # fmt: skip
     fitting = [t for t in table if t["fits"]]
-    enough = [t for t in fitting if t["agreement"] >= AGREEMENT]
-    chosen = (enough or fitting[-1:] or [None])[0]
+    enough = sorted((t for t in fitting if t["agreement"] >= AGREEMENT), key=lambda t: t["wall_s"])
+    best = max(fitting, key=lambda t: t["agreement"], default=None)
+    chosen = enough[0] if enough else best
     result = {
         "records": records,
-        "power_from": [f.name for f in args.power_from],
-        "mu": mu,
-        "sigma": sigma,
-        "run_seconds": args.run_seconds,
+        "spread": {str(k): v for k, v in spread.items()},
+        "run_seconds": {str(k): v for k, v in per_run.items()},
         "budget_s": args.budget,
         "table": table,
-        "chosen_runs": chosen and chosen["runs"],
+        "chosen": chosen and {"rollouts": chosen["rollouts"], "runs": chosen["runs"]},
     }
     lines = [
-        "| record | runs | differences per run (LHF - baseline) | mean (95% CI) | verdict |",
-        "|---|---|---|---|---|",
+        "| record | rollouts | runs | differences per run (LHF - baseline) | mean (95% CI) | verdict |",
+        "|---|---|---|---|---|---|",
     ]
     for r in records:
         lo, hi = r["diff_ci95"]
         lines.append(
-            f"| {r['record']} | {r['runs']} | {', '.join(f'{x:+.2f}' for x in r['differences'])}"
-            f" | {r['diff']:+.2f} ({lo:+.2f} .. {hi:+.2f}) | {r['verdict']} |"
+            f"| {r['record']} | {r['rollouts']} | {r['runs']} | "
+            f"{', '.join(f'{x:+.2f}' for x in r['differences'])} | {r['diff']:+.2f} "
+            f"({lo:+.2f} .. {hi:+.2f}) | {r['verdict']} |"
+        )
+    lines.append("")
+    for rollouts, s in sorted(spread.items()):
+        lines.append(
+            f"- {rollouts} rollouts ({s['records']} records): mean difference {s['mu']:+.2f}, "
+            f"pooled std of one run's difference {s['sigma']:.2f} ({s['dof']} degrees of freedom)"
         )
     lines += [
         "",
-        f"From {', '.join(result['power_from'])}: mean difference {mu:+.2f}, pooled std of one "
-        f"run's difference {sigma:.2f} ({dof} degrees of freedom).",
-        "",
-        "| runs | power (paired t, 5 %) | two CPUs agree | projected wall | within budget |",
-        "|---|---|---|---|---|",
+        "| rollouts | runs | power (paired t, 5 %) | two CPUs agree | projected wall | within budget |",
+        "|---|---|---|---|---|---|",
     ]
     for t in table:
         lines.append(
-            f"| {t['runs']} | {t['power']:.2f} | {t['agreement']:.2f} | {t['wall_s'] / 60:.1f} min"
-            f" | {'yes' if t['fits'] else 'no'} |"
+            f"| {t['rollouts']} | {t['runs']} | {t['power']:.2f} | {t['agreement']:.2f} | "
+            f"{t['wall_s'] / 60:.1f} min | {'yes' if t['fits'] else 'no'} |"
         )
-    lines += ["", f"Chosen: {result['chosen_runs']} runs."]
+    lines += ["", f"Chosen: {result['chosen']}."]
     write_json_atomic(result, args.out / "runs.json")
     write_text_atomic("\n".join(lines) + "\n", args.out / "runs.md")
     print("\n".join(lines))

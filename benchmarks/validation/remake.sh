@@ -25,10 +25,10 @@
 #             results/validation/dicp_steps/step-N-MODE as each finishes, and dicp-2000, dicp-4000
 #             and dicp-8000 are parts of their own (~1, ~1.4 and ~2.1 h): each fits a short stay on
 #             one machine, and they run side by side
-#   main-job  the README's main job on each run's validation goals (main-job.yaml): runs 0-4 at
-#             4 rollouts per goal, and runs 0-2 at 4 and at 1 rollout (the same trainings, cached),
-#             on this CPU and with the AVX2 kernels and code paths (another CPU's draws); then
-#             main_job_runs.py: the runs whose verdict two CPUs share; ~40 min
+#   main-job  the README's main job on each run's validation goals (main-job.yaml, runs 0-4) at 4
+#             and at 16 rollouts per goal (the same trainings, cached), on this CPU and with the
+#             AVX2 kernels and code paths (another CPU's draws), then main_job_runs.py: the runs
+#             and rollouts whose verdict two CPUs share within 10 minutes; ~40 min
 # One part per core: `remake.sh data`, then e.g. `remake.sh lr rollouts main-job dicp-2000` and
 # `remake.sh dicp-8000` side by side, then `remake.sh dicp-4000 dicp` (the curve once all three are in).
 set -euo pipefail
@@ -127,35 +127,30 @@ part_dicp() {  # the three cosine lengths (each a part of its own: dicp-2000 ...
   run $goals write "$out/dicp_steps"
 }
 
-part_main_job() {  # runs 0-4 at 4 rollouts, then from the cache runs 0-2 at 4 and at 1 rollout
+part_main_job() {  # runs 0-4 at 4 rollouts, then the same trainings (cached) rolled out 16 times
   done_part main-job --splits 0 1 2 3 4 && return
   local isa what name old
   local -a env avx2=(env LHF_HF_KERNEL_MARCH=haswell ATEN_CPU_CAPABILITY=avx2 ONEDNN_MAX_CPU_ISA=AVX2)
-  local -a budgets=("quick 5 4" "quick 3 4" "cpu 3 1")  # preset, runs, the preset's rollouts
+  local -a budgets=("quick 4" "cpu 16")  # main-job.yaml's preset and its rollouts per goal
   for isa in avx512 avx2; do
     env=()
     [ "$isa" = avx2 ] && env=("${avx2[@]}")
     for what in "${budgets[@]}"; do
       set -- $what
-      run "${env[@]}" lhf reproduce benchmarks/validation/main-job.yaml --preset "$1" --runs "$2" \
-        --jobs 2 --no-progress --work "$work/main-job-$isa" --out "$work/main-job/$isa-runs$2-rollouts$3"
+      run "${env[@]}" lhf reproduce benchmarks/validation/main-job.yaml --preset "$1" --jobs 2 \
+        --no-progress --work "$work/main-job-$isa" --out "$work/main-job/$isa-rollouts$2"
     done
   done
   run mkdir -p "$out/main-job"
   for old in "$out"/main-job/avx*; do [ -e "$old" ] && run rm -rf "$old"; done
-  for isa in avx512 avx2; do
-    for what in "${budgets[@]}"; do
-      set -- $what
-      name="$isa-runs$2-rollouts$3"
-      run cp -r "$work/main-job/$name" "$out/main-job/$name"
-    done
+  for name in avx512-rollouts4 avx512-rollouts16 avx2-rollouts4 avx2-rollouts16; do
+    run cp -r "$work/main-job/$name" "$out/main-job/$name"
   done
-  # the runs the main job needs: --run-seconds is its wall per run at --jobs 2 on a quiet 2-core
-  # Intel Xeon (309 s for 3 runs, results/darkroom-noisy-quick-xeon)
-  run python benchmarks/validation/main_job_runs.py "$out"/main-job/avx512-runs{5,3}-rollouts4 \
-    "$out/main-job/avx512-runs3-rollouts1" "$out"/main-job/avx2-runs{5,3}-rollouts4 \
-    "$out/main-job/avx2-runs3-rollouts1" --power-from "$out"/main-job/avx{512,2}-runs5-rollouts4 \
-    --run-seconds 103 --budget 600 --out "$out/main-job"
+  # --run-seconds: the main job's wall per run at --jobs 2 on a quiet 2-core Intel Xeon (309 s
+  # for 3 runs at 4 rollouts, results/darkroom-noisy-quick-xeon); 12 more rollouts add ~16 s to
+  # each of a run's two evaluations (one thread), which --jobs 2 runs side by side
+  run python benchmarks/validation/main_job_runs.py "$out"/main-job/avx{512,2}-rollouts{4,16} \
+    --run-seconds 4=103 16=119 --budget 600 --out "$out/main-job"
   run $goals write "$out/main-job" --splits 0 1 2 3 4
 }
 

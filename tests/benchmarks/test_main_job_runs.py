@@ -29,51 +29,69 @@ def test_power_far_in_the_tail_is_one_not_nan():
     assert _module.power(-10.0, 0.3, 8) == pytest.approx(1.0)
 
 
-def _record(folder: Path, baseline, lhf) -> Path:
+def _record(folder: Path, baseline, lhf, rollouts: int = 4) -> Path:
     from lhf_hf.evaluation.compare import paired_statistics
 
     row = {"baseline_run_means": baseline, "lhf_run_means": lhf, **paired_statistics(
         np.array(baseline), np.array(lhf))}  # fmt: skip
     folder.mkdir()
-    (folder / "results.json").write_text(json.dumps({"cells": [{"rows": [row]}]}))
+    record = {"experiment": {"evaluate": {"rollouts": rollouts}}, "cells": [{"rows": [row]}]}
+    (folder / "results.json").write_text(json.dumps(record))
     return folder
 
 
-def _run(monkeypatch, *args) -> None:
+def _run(monkeypatch, *args) -> dict:
+    out = args[args.index("--out") + 1]
     monkeypatch.setattr(sys, "argv", [str(SCRIPT), *map(str, args)])
     _module.main()
+    return json.loads((Path(out) / "runs.json").read_text())
 
 
-def test_the_fewest_runs_whose_two_draws_agree_within_the_budget(tmp_path, monkeypatch):
-    # differences +1, +3 and +2, +2, +2 (pooled: mean 2, variance (2 + 0) / (1 + 2) = 2/3)
+def test_each_rollout_count_pools_its_cpus_and_the_fastest_agreeing_budget_is_chosen(
+    tmp_path, monkeypatch
+):
+    # 4 rollouts: differences +1, +3 and +2, +2, +2 (two CPUs; pooled mean 2, variance
+    # (2 + 0) / (1 + 2) = 2/3); 16 rollouts: +2, +2.2 and +1.8, +2 (mean 2, variance
+    # (0.02 + 0.02) / 2 = 0.02)
     a = _record(tmp_path / "a", [1.0, 1.0], [2.0, 4.0])
     b = _record(tmp_path / "b", [1.0, 2.0, 3.0], [3.0, 4.0, 5.0])
-    _run(monkeypatch, a, b, "--power-from", a, b, "--run-seconds", 100, "--budget", 500,
-         "--out", tmp_path / "out")  # fmt: skip
-    result = json.loads((tmp_path / "out" / "runs.json").read_text())
-    assert result["mu"] == pytest.approx(2.0)
-    assert result["sigma"] == pytest.approx((2 / 3) ** 0.5)
-    by_runs = {t["runs"]: t for t in result["table"]}
-    assert [n for n, t in by_runs.items() if t["fits"]] == [3, 4, 5]
-    for t in result["table"]:
-        assert t["power"] == pytest.approx(_module.power(2.0, (2 / 3) ** 0.5, t["runs"]))
+    c = _record(tmp_path / "c", [1.0, 1.0], [3.0, 3.2], rollouts=16)
+    d = _record(tmp_path / "d", [1.0, 1.0], [2.8, 3.0], rollouts=16)
+    result = _run(monkeypatch, a, b, c, d, "--run-seconds", "4=100", "16=120", "--budget", 500,
+                  "--out", tmp_path / "out")  # fmt: skip
+    assert result["spread"]["4"]["mu"] == pytest.approx(2.0)
+    assert result["spread"]["4"]["sigma"] == pytest.approx((2 / 3) ** 0.5)
+    assert result["spread"]["16"]["sigma"] == pytest.approx(0.02**0.5)
+    by = {(t["rollouts"], t["runs"]): t for t in result["table"]}
+    assert [n for (r, n), t in by.items() if r == 4 and t["fits"]] == [3, 4, 5]
+    assert [n for (r, n), t in by.items() if r == 16 and t["fits"]] == [3, 4]
+    for (r, n), t in by.items():
+        s = result["spread"][str(r)]
+        assert t["power"] == pytest.approx(_module.power(s["mu"], s["sigma"], n))
         assert t["agreement"] == pytest.approx(t["power"] ** 2 + (1 - t["power"]) ** 2)
-    first = min(n for n, t in by_runs.items() if t["fits"] and t["agreement"] >= 0.9)
-    assert result["chosen_runs"] == first
+    # 4 rollouts first agree at 5 runs (500 s), 16 at 3 (360 s): the faster is chosen
+    assert [n for (r, n), t in by.items() if r == 4 and t["agreement"] >= 0.9][0] == 5
+    assert by[(16, 3)]["agreement"] >= 0.9
+    assert result["chosen"] == {"rollouts": 16, "runs": 3}
     assert [r["verdict"] for r in result["records"]][1] == "helps"
-    assert "| b | 3 | +2.00, +2.00, +2.00 |" in (tmp_path / "out" / "runs.md").read_text()
+    md = (tmp_path / "out" / "runs.md").read_text()
+    assert "| b | 4 | 3 | +2.00, +2.00, +2.00 |" in md
 
 
-def test_without_enough_power_the_most_runs_the_budget_holds(tmp_path, monkeypatch):
+def test_without_enough_power_the_budget_that_agrees_most(tmp_path, monkeypatch):
     a = _record(tmp_path / "a", [1.0, 1.0, 1.0], [1.0, 3.0, 1.5])  # mean +0.83, std 1.04
-    _run(
-        monkeypatch, a, "--power-from", a, "--run-seconds", 100, "--budget", 400, "--out", tmp_path
-    )
-    result = json.loads((tmp_path / "runs.json").read_text())
-    assert result["chosen_runs"] == 4
-    assert all(t["agreement"] < 0.9 for t in result["table"] if t["fits"])
+    result = _run(monkeypatch, a, "--run-seconds", "4=100", "--budget", 400, "--out", tmp_path)
+    fits = [t for t in result["table"] if t["fits"]]
+    assert all(t["agreement"] < 0.9 for t in fits)
+    best = max(fits, key=lambda t: t["agreement"])
+    assert result["chosen"] == {"rollouts": 4, "runs": best["runs"]}
 
 
-def test_a_folder_that_is_not_a_record_is_refused(tmp_path, monkeypatch):
+def test_bad_input_is_refused(tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="not a main-job validation record"):
-        _run(monkeypatch, tmp_path, "--power-from", tmp_path, "--run-seconds", 1, "--out", tmp_path)
+        _run(monkeypatch, tmp_path, "--run-seconds", "4=1", "--out", tmp_path)
+    a = _record(tmp_path / "a", [1.0, 1.0], [2.0, 4.0], rollouts=16)
+    with pytest.raises(SystemExit, match="no wall time for \\[16\\] rollouts"):
+        _run(monkeypatch, a, "--run-seconds", "4=1", "--out", tmp_path)
+    with pytest.raises(SystemExit, match="ROLLOUTS=SECONDS"):
+        _run(monkeypatch, a, "--run-seconds", "16", "--out", tmp_path)
