@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main job on the embedded default (local folders stand in for the hub): the environment
 # registry, then `lhf reproduce darkroom-noisy --preset quick --jobs 2`: the paper's noisy-data
-# experiment on Darkroom (30% of the histories from a random policy), lightweight AD, 3 runs, end to end
+# experiment on Darkroom (30% of the histories from a random policy), lightweight AD, 5 runs, end to end
 # (batched PPO collection of the train goals, LHF filtering, AD trained with and without LHF,
 # in-context evaluation on the unseen goals, the comparison), ending in a report of E with its error
 # bar beside the paper's number; two stages at a time, one per core.  Every stage is cached under
