@@ -5,10 +5,13 @@ AMD EPYC with AVX2 (BENCHMARKS.md), so being available is not a reason to use it
 ``auto`` collection on a machine both paths run the same small stacked update (81 learners, the
 size of a Darkroom chunk's minibatch steps) and the faster one is chosen; the verdict is cached
 beside the kernel, keyed by the kernel library (whose key holds the compiler's expansion of
-``-march=native``, i.e. the CPU's features), the CPU model, torch's version and its thread count.
+``-march=native``, i.e. the CPU's features), the CPU model and torch's version.
 The two backends draw their random numbers differently, so the chosen one is part of a dataset's
 identity (``CollectConfig.ppo_backend`` is stored resolved) and the verdict goes into its
-provenance.
+provenance.  Hence one verdict per machine, measured on one thread whatever the measuring process
+has: ``lhf reproduce --jobs 2`` resolves ``auto`` in its own process (two threads) and again in
+each stage's child (one), and a verdict per thread count could name two backends, i.e. two stage
+hashes for one collection, and the children would not find their stage.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from .ppo_backends import ppo_update
 
 logger = logging.getLogger(__name__)
 
-VERDICT_VERSION = 1
+VERDICT_VERSION = 2  # 2: one thread, not keyed by the process's thread count
 #: The measured update: Darkroom's chunk size, one epoch of 8 minibatches of 50.
 LEARNERS, SAMPLES, BATCH, REPEATS = 81, 400, 50, 3
 
@@ -80,7 +83,6 @@ def _verdict_path(obs_dim: int, num_actions: int) -> Path:
                 lib.name,
                 cpu_model(),
                 torch.__version__,
-                torch.get_num_threads(),
                 obs_dim,
                 num_actions,
             ]  # fmt: skip
@@ -102,7 +104,17 @@ def _rollout(obs_dim: int, num_actions: int, gen: torch.Generator) -> Rollout:
 
 
 def measure(obs_dim: int, num_actions: int) -> dict:
-    """Milliseconds per minibatch step of each backend on one stacked update (median of 3)."""
+    """Milliseconds per minibatch step of each backend on one stacked update (median of 3), on one
+    thread (the module docstring says why)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _measure(obs_dim, num_actions)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _measure(obs_dim: int, num_actions: int) -> dict:
     gen = torch.Generator().manual_seed(0)
     policy = StackedPolicy(LEARNERS, obs_dim, num_actions, gen)
     data = _rollout(obs_dim, num_actions, gen)
@@ -139,6 +151,7 @@ def verdict(obs_dim: int = 2, num_actions: int = 5) -> dict:
         "choice": "kernel" if times["kernel_ms"] <= times["torch_ms"] else "torch",
         **times,
         **machine(),
+        "threads": 1,  # measured on one
         "torch": torch.__version__,
         "measured": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

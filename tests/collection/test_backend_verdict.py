@@ -53,6 +53,34 @@ def test_the_verdict_is_measured_once_cached_and_honoured(cache, monkeypatch):
 
 
 @pytest.mark.slow
+def test_one_verdict_whatever_the_thread_count_of_the_process(cache, monkeypatch):
+    # lhf reproduce --jobs 2 resolves auto in its own process (two threads) and in each stage's
+    # child (one): both must name the same backend, or a child does not find its stage's hash
+    import torch
+
+    seen = []
+    real = backend_verdict._measure
+
+    def spy(*args):
+        seen.append(torch.get_num_threads())
+        return real(*args)
+
+    monkeypatch.setattr(backend_verdict, "_measure", spy)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        first = backend_verdict.verdict(2, 5)
+        assert torch.get_num_threads() == 2  # put back after measuring
+        torch.set_num_threads(1)
+        again = backend_verdict.verdict(2, 5)
+    finally:
+        torch.set_num_threads(before)
+    assert seen == [1] and not first["cached"] and again["cached"]
+    assert again["path"] == first["path"] and again["choice"] == first["choice"]
+    assert first["threads"] == 1
+
+
+@pytest.mark.slow
 def test_the_collection_records_where_it_ran(cache, tmp_path):
     from lhf_hf.collection import collect
 
