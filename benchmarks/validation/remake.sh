@@ -147,7 +147,7 @@ part_main_job() {  # runs 0-4 at 4 rollouts, then the same trainings (cached) ro
     run cp -r "$work/main-job/$name" "$out/main-job/$name"
   done
   # --run-seconds: the main job's wall per run at --jobs 2 on a quiet 2-core Intel Xeon (309 s
-  # for 3 runs at 4 rollouts, results/darkroom-noisy-quick-xeon); 12 more rollouts add ~16 s to
+  # for 3 runs at 4 rollouts: results/darkroom-noisy-quick-xeon at f477be0); 12 more rollouts add ~16 s to
   # each of a run's two evaluations (one thread), which --jobs 2 runs side by side
   run python benchmarks/validation/main_job_runs.py "$out"/main-job/avx{512,2}-rollouts{4,16} \
     --run-seconds 4=103 16=119 --budget 600 --out "$out/main-job"
