@@ -146,11 +146,11 @@ part_main_job() {  # runs 0-4 at 4 rollouts, then the same trainings (cached) ro
   for name in avx512-rollouts4 avx512-rollouts16 avx2-rollouts4 avx2-rollouts16; do
     run cp -r "$work/main-job/$name" "$out/main-job/$name"
   done
-  # --run-seconds: the main job's wall per run at --jobs 2 on a quiet 2-core Intel Xeon (309 s
-  # for 3 runs at 4 rollouts: results/darkroom-noisy-quick-xeon at f477be0); 12 more rollouts add ~16 s to
-  # each of a run's two evaluations (one thread), which --jobs 2 runs side by side
+  # --run-seconds: the main job's wall per run at --jobs 2, a fresh clone on a quiet 2-core Intel
+  # Xeon: 309 s for 3 runs at 4 rollouts (results/darkroom-noisy-quick-xeon at f477be0), 492 s
+  # for 5 runs at 16 (BENCHMARKS.md)
   run python benchmarks/validation/main_job_runs.py "$out"/main-job/avx{512,2}-rollouts{4,16} \
-    --run-seconds 4=103 16=119 --budget 600 --out "$out/main-job"
+    --run-seconds 4=103 16=98 --budget 600 --out "$out/main-job"
   run $goals write "$out/main-job" --splits 0 1 2 3 4
 }
 

@@ -138,9 +138,10 @@ def _choices(exp: Experiment) -> list[str]:
 
     rows = [[f"`{k}`", f"`{cell(exp.setting(k))}`", f"**{c['chosen']}**" if c["chosen"] == "test"
              else c["chosen"], cell(c["evidence"])] for k, c in exp.choices.items()]  # fmt: skip
-    legend = ("validation: on validation goals (train goals held out of the tuning runs' data; "
-              "the choices below were made on the earlier validation goals, some of them test "
-              "goals of other splits: results/FINDINGS.md); "
+    legend = ("validation: on validation goals (train goals held out of the tuning runs' data, "
+              "a test goal of no split 0-9; evidence that says 'earlier validation goals' was "
+              "made on an earlier set, some of them test goals of other splits: "
+              "results/FINDINGS.md); "
               "paper / reference: the paper's or the reference code's value; budget: by cost, not "
               "by return; design: measured elsewhere; **test**: on test goals, to be discounted")  # fmt: skip
     return ["", f"**How the settings were chosen** ({legend}):", "",
