@@ -25,6 +25,10 @@
 #             results/validation/dicp_steps/step-N-MODE as each finishes, and dicp-2000, dicp-4000
 #             and dicp-8000 are parts of their own (~1, ~1.4 and ~2.1 h): each fits a short stay on
 #             one machine, and they run side by side
+#   state-encoding  DICP with the reference's 81-cell states at 4,000 steps (seed 0, as dicp-4000
+#             but --state-encoding cells), without planning and with the reference planner, then
+#             state_encoding.py against dicp-4000's coordinates records: ours is kept only where it
+#             is ahead by more than the spread between trained models (0.98, rollouts); ~25 min
 #   main-job  the README's main job on each run's validation goals (main-job.yaml, runs 0-4) at 4
 #             and at 16 rollouts per goal (the same trainings, cached), on this CPU and with the
 #             AVX2 kernels and code paths (another CPU's draws), then main_job_runs.py: the runs
@@ -36,7 +40,7 @@ cd "$(dirname "$0")/../.."
 dry=0
 if [ "${1:-}" = "--dry-run" ]; then dry=1; shift; fi
 parts=("$@")
-[ ${#parts[@]} -gt 0 ] || parts=(data lr rollouts dicp main-job)
+[ ${#parts[@]} -gt 0 ] || parts=(data lr rollouts dicp state-encoding main-job)
 export OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE
 data=data/validation-fit
 work=runs/validation-remake
@@ -119,6 +123,32 @@ dicp_steps() {  # one DICP, its cosine over $1 steps, and its 4 evaluations (kep
   done
 }
 
+part_state_encoding() {  # the reference's cell states against ours, at dicp-4000's budget
+  done_part state_encoding && return
+  local mode flags model="$work/dicp/dicp-4000-cells" evals="$out/state_encoding"
+  fit_data
+  if [ ! -f "$model/model.safetensors" ]; then
+    local -a again=()
+    if compgen -G "$model/checkpoint-*" >/dev/null; then again=(--resume)
+    elif [ -d "$model" ]; then again=(--overwrite); fi
+    run lhf train --dataset "$data" --objective dicp --preset paper --max-steps 4000 \
+      --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding cells \
+      --seed 0 --save-steps 500 --no-progress "${again[@]}" --out "$model"
+  fi
+  for mode in policy ref; do
+    flags=()
+    [ "$mode" = ref ] && flags=(--plan)
+    $goals check "$evals/cells-$mode/eval_results.json" && continue
+    [ -d "$evals/cells-$mode" ] && flags+=(--overwrite)
+    run lhf evaluate --model "$model" --tasks validation --episodes 100 --rollouts 4 --seed 0 \
+      --no-progress "${flags[@]}" --out "$evals/cells-$mode"
+  done
+  dicp_steps 4000  # the coordinates records it is compared with (kept, or made)
+  run python benchmarks/validation/state_encoding.py --evals "$out/dicp_steps/step-4000" \
+    "$evals/cells" --labels coordinates cells --modes policy ref --margin 0.98 --out "$evals"
+  run $goals write "$evals"
+}
+
 part_dicp() {  # the three cosine lengths (each a part of its own: dicp-2000 ...), then the curve
   done_part dicp_steps && return
   local steps
@@ -158,8 +188,9 @@ for part in "${parts[@]}"; do
   case $part in
     data) fit_data ;;
     lr | rollouts | dicp) "part_$part" ;;
+    state-encoding) part_state_encoding ;;
     dicp-2000 | dicp-4000 | dicp-8000) dicp_steps "${part#dicp-}" ;;
     main-job) part_main_job ;;
-    *) echo "unknown part '$part': data, lr, rollouts, dicp[-2000|-4000|-8000] or main-job" >&2; exit 2 ;;
+    *) echo "unknown part '$part': data, lr, rollouts, dicp[-2000|-4000|-8000], state-encoding or main-job" >&2; exit 2 ;;
   esac
 done
