@@ -27,17 +27,23 @@ from scipy import stats
 from lhf_hf.utils.io import read_json, write_json_atomic, write_text_atomic
 
 
-def goal_means(path: Path) -> tuple[list[int], np.ndarray]:
-    """An evaluation's goals and each goal's whole-curve mean over its rollouts."""
+def goal_means(path: Path) -> tuple[list[int], np.ndarray, str | None]:
+    """An evaluation's goals, each goal's whole-curve mean over its rollouts, and the fingerprint
+    of the dataset its model trained on."""
     r = read_json(path / "eval_results.json")
     returns = np.asarray(r["returns"], dtype=float)  # (rollouts * goals, episodes), rollout-major
-    return list(r["tasks"]), returns.reshape(r["rollouts"], len(r["tasks"]), -1).mean(axis=(0, 2))
+    data = ((r.get("model") or {}).get("dataset") or {}).get("fingerprint")
+    means = returns.reshape(r["rollouts"], len(r["tasks"]), -1).mean(axis=(0, 2))  # (goals,)
+    return list(r["tasks"]), means, data
 
 
 def compare(prefixes: list[str], labels: list[str], modes: list[str], margin: float) -> dict:
-    rows = []
+    rows, data = [], set()
     for mode in modes:
-        (goals_a, a), (goals_b, b) = (goal_means(Path(f"{p}-{mode}")) for p in prefixes)
+        (goals_a, a, data_a), (goals_b, b, data_b) = (
+            goal_means(Path(f"{p}-{mode}")) for p in prefixes
+        )
+        data |= {data_a, data_b}
         if goals_a != goals_b:
             raise SystemExit(f"{mode}: the two evaluations ran other goals ({goals_a}, {goals_b})")
         diff = b - a  # (goals,): the reference's minus ours
@@ -47,7 +53,9 @@ def compare(prefixes: list[str], labels: list[str], modes: list[str], margin: fl
                      float(diff.mean() + half)], "goals_up": int((diff > 0).sum()),
                      "goals": len(diff)})  # fmt: skip
     keep_ours = any(-row["diff"] > margin for row in rows)
-    return {"labels": labels, "margin": margin, "rows": rows,
+    # one collection config gives other draws on a CPU of another instruction set
+    # (docs/histories.md): two models on two draws differ by their data as well
+    return {"labels": labels, "margin": margin, "rows": rows, "same_data": len(data) == 1,
             "choice": labels[0] if keep_ours else labels[1]}  # fmt: skip
 
 
@@ -67,6 +75,10 @@ def render(found: dict) -> str:
                      f"{row['goals']} |")  # fmt: skip
     lines += ["", f"Rule: {first} (a departure) is kept only if it is ahead by more than "
               f"{found['margin']:g} in some mode. Choice: **{found['choice']}**.", ""]  # fmt: skip
+    if not found["same_data"]:
+        lines += ["The two models trained on two draws of one collection config (other datasets "
+                  "by fingerprint, e.g. collected on CPUs of other instruction sets): their "
+                  "difference holds the data's draw too.", ""]  # fmt: skip
     return "\n".join(lines)
 
 
