@@ -57,8 +57,11 @@ done_part() {  # results/validation/$1 holds a finished part made on today's goa
 }
 
 fit_data() {
-  [ -f "$data/meta/info.json" ] || run lhf collect darkroom --tasks fit --histories 100 \
-    --protocol paper --collector batched --ppo-backend kernel --out "$data"
+  [ -f "$data/meta/info.json" ] && return
+  local -a again=()
+  [ -d "$data" ] && again=(--resume)  # a collection cut short goes on from its finished tasks
+  run lhf collect darkroom --tasks fit --histories 100 --protocol paper --collector batched \
+    --ppo-backend kernel "${again[@]}" --out "$data"
 }
 
 part_lr() {

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from lhf_hf.envs import get_spec
 from lhf_hf.filtering.within_task import describe
 
 from .experiment import Experiment, shadows_shipped
@@ -95,6 +96,24 @@ def readings(exp: Experiment, cells: list[dict]) -> list[dict]:
             found = {"label": _label(cell), "column": column, "paper": paper, "row": row}
             out.append({**found, "verdict": None if row is None else verdict(row)})
     return out
+
+
+def _dicp_model(exp: Experiment) -> str:
+    """What the DICP model is, beside the reference code's (issue 55: no unlabelled departure)."""
+    encoding = exp.train_config("dicp", 0, dataset="-", selection=None, out="-").state_encoding
+    if not any(np.issubdtype(get_spec(env).state_space.dtype, np.integer) for env in exp.envs):
+        states = "real-valued states as the env gives them"  # no encoding to choose
+    elif encoding == "cells":
+        states = "the reference's cell states (one one-hot over the grid's cells)"
+    else:
+        states = f"{encoding} states (ours; the reference's are one-hots over the grid's cells)"
+    return (
+        "The DICP model is the LHF paper's objective (action, reward, next-state and "
+        "return-to-go labels at every position, a query-action token after each transition; the "
+        f"reference code labels one query per window and has no return head) on {states}: the "
+        "paper's DICP E stands beside the reference planner on this model, the closest cell, not "
+        "the reference model itself (the spec's choices say how each setting was chosen)."
+    )
 
 
 def _label(cell: dict) -> str:
@@ -190,6 +209,8 @@ def render_report(exp: Experiment, cells: list[dict], summary: dict, out: Path) 
         lines += ["", f"DICP is evaluated from the same checkpoints as {named}: `DICP + plan` is "
                   "the reference planner (every step once the context is full), a suffix names "
                   "a variant of ours; the paper's DICP values are with planning."]  # fmt: skip
+    if "dicp" in exp.objectives:
+        lines += ["", _dicp_model(exp)]
     by_label: dict[str, list[str]] = {}
     for r in found:
         by_label.setdefault(r["label"], []).append(_entry(r))

@@ -278,6 +278,13 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     assert "| env | AD | DICP | DICP + plan |" in lines
     assert sum(line.startswith("| darkroom | +20.0 ± 1.0 (+25.1) |") for line in lines) == 1
     assert sum(line.startswith("- darkroom, ") for line in lines) == 3
+    # the DICP model's departures from the reference code are said beside the paper's E
+    (model,) = [line for line in lines if line.startswith("The DICP model is")]
+    assert "coordinates states (ours; the reference's are one-hots" in model
+    cells = {**dicp, "train": {"by_objective": {"dicp": {"state_encoding": "cells"}}}}
+    text = render_report(load_experiment(_spec(tmp_path, cells, "c")), [],
+                         {"stages": [], "created": "now", "versions": {}}, tmp_path / "c")  # fmt: skip
+    assert "on the reference's cell states" in text and "(ours;" not in text
 
 
 def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
