@@ -56,25 +56,17 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     gate["evaluate"].update(plan_dicp="both", plan_gate="reward_seen")
     gate["evaluate"]["episodes"] = EvalConfig(model="-", out="-").episodes
     assert diff(gate, "ad") == [] and diff(gate, "dpt") == []
-    assert diff(gate, "dicp") == [
-        "evaluate.gated absent (now run)", "evaluate.gated:0.99 absent (now run)",
-        "evaluate.plan.plan_gate reward_seen (now always)"
-    ]  # fmt: skip
+    assert diff(gate, "dicp") == ["evaluate.plan.plan_gate reward_seen (now always)"]
     # a mode or an arm only one side has is one entry; the derived chunk size written out is none
     once = json.loads(json.dumps(now))
     once["evaluate"]["plan_dicp"] = True
     once["collect"]["tasks_per_chunk"] = 500  # what 100 histories give anyway
-    assert diff(once, "dicp") == [
-        "evaluate.gated absent (now run)", "evaluate.gated:0.99 absent (now run)",
-        "evaluate.policy absent (now run)"
-    ] and diff(once, "ad") == []  # fmt: skip
+    assert diff(once, "dicp") == ["evaluate.policy absent (now run)"] and diff(once, "ad") == []
     # a table made before the planner's reference tie order planned with ties by policy: its
     # planned cells are dated and its planned rows named so; its model-free ones stay current
     made = {"experiment": now, "created": "2026-12-02T00:00:00+0000"}
     old_ties = recorded_experiment(made, exp)
     assert differences(old_ties, exp, "darkroom", "dicp") == [
-        "evaluate.gated.plan_ties policy (now index)",
-        "evaluate.gated:0.99.plan_ties policy (now index)",
         "evaluate.plan.plan_ties policy (now index)",
     ] and differences(old_ties, exp, "darkroom", "ad") == []  # fmt: skip
     row = {"backbone": "DICP + plan"}
