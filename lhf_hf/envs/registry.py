@@ -44,8 +44,10 @@ class EnvSpec:
     extra: optional dependency group needed to build the env (``pip install 'lhf_hf[extra]'``).
     context_length: default model context in transitions *(ref)*: darkroom 80, the other gridworlds
         200, Meta-World 1000 (docs/design.md 6).
-    plan_horizon: DICP beam-search depth *(ref)*: darkroom 8, the other gridworlds 16 (docs/design.md 7;
-        Meta-World plans greedily one step ahead and ignores it).
+    plan_horizon: DICP beam-search depth: darkroom 8, Darkroom-Permuted and Dark Key-to-Door 16 *(ref*:
+        grid size - 1 and 2 (grid size - 1)); Darkroom-Large 16 is ours (the reference has no
+        Large; its rule would give 28) (docs/design.md 7; Meta-World plans greedily one step
+        ahead and ignores it).
     ppo: the paper's PPO ``(n_steps, batch_size, n_epochs)`` for this env (docs/design.md 3).
     batched: ``batched(tasks) -> core``: a numpy core stepping one copy per task at once (``reset``,
         ``step``, ``optimal_action``; see ``BatchedGridworld``), or None.  With it the batched PPO

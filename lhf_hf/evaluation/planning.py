@@ -12,8 +12,9 @@ reference); the search and its choices are the same.
 
 - ``beam_search`` (discrete actions): beams start from the current state; each depth expands every
   beam with every action, scores a candidate by the sum of predicted rewards along its path, keeps
-  the best ``beams`` (ties: the more probable action under the beam's policy first, then the earlier
-  beam), and imagines the next state with the next-state head.  Returns the first action of the best
+  the best ``beams`` (ties below depth 0: by action index within a beam, then the earlier beam,
+  as the reference's stable sort; ``ties="policy"``, ours: the more probable action first), and
+  imagines the next state with the next-state head.  Returns the first action of the best
   path.
 - ``greedy_search`` (continuous actions): the policy mean and ``samples - 1`` draws from the policy;
   the candidate with the highest predicted reward wins.

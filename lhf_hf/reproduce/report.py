@@ -90,8 +90,8 @@ def readings(exp: Experiment, cells: list[dict]) -> list[dict]:
         rows = {r["backbone"]: r for r in cell["rows"]}
         for column in columns(exp):
             paper = (exp.paper.get(cell["env_id"]) or {}).get(objective_of(column))
-            if reference is not None and objective_of(column) == "dicp" and column != reference:
-                paper = None
+            if objective_of(column) == "dicp" and column != reference:
+                paper = None  # the policy alone, or a variant: not what the paper measured
             row = rows.get(column)
             found = {"label": _label(cell), "column": column, "paper": paper, "row": row}
             out.append({**found, "verdict": None if row is None else verdict(row)})
@@ -103,16 +103,27 @@ def _dicp_model(exp: Experiment) -> str:
     encoding = exp.train_config("dicp", 0, dataset="-", selection=None, out="-").state_encoding
     if not any(np.issubdtype(get_spec(env).state_space.dtype, np.integer) for env in exp.envs):
         states = "real-valued states as the env gives them"  # no encoding to choose
-    elif encoding == "cells":
-        states = "the reference's cell states (one one-hot over the grid's cells)"
     else:
-        states = f"{encoding} states (ours; the reference's are one-hots over the grid's cells)"
+        # the reference embeds a context transition's states as raw (row, col) numbers, the query
+        # state by its cell, and predicts the next state's cell (jaehyeon-son/dicp, model/ad.py)
+        states = (
+            "states one-hot over the grid's cells (ours; the reference embeds context states as "
+            "raw coordinates and only the query state and the next-state head by cell)"
+            if encoding == "cells"
+            else f"{encoding} states one-hot per coordinate (ours; the reference embeds context "
+            "states as raw coordinates and the query state and the next-state head by cell)"
+        )
+    where = (
+        "the paper's DICP E stands beside the reference planner on this model, the closest cell, "
+        "not the reference model itself"
+        if "plan" in exp.dicp_plan_modes()
+        else "this table does not plan, so the paper's DICP E (with planning) has no cell here"
+    )
     return (
         "The DICP model is the LHF paper's objective (action, reward, next-state and "
         "return-to-go labels at every position, a query-action token after each transition; the "
-        f"reference code labels one query per window and has no return head) on {states}: the "
-        "paper's DICP E stands beside the reference planner on this model, the closest cell, not "
-        "the reference model itself (the spec's choices say how each setting was chosen)."
+        f"reference code labels one query per window and has no return head) on {states}: "
+        f"{where} (the spec's choices say how each setting was chosen)."
     )
 
 

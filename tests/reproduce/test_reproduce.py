@@ -280,11 +280,21 @@ def test_dicp_both_evaluates_each_checkpoint_with_and_without_planning(tmp_path)
     assert sum(line.startswith("- darkroom, ") for line in lines) == 3
     # the DICP model's departures from the reference code are said beside the paper's E
     (model,) = [line for line in lines if line.startswith("The DICP model is")]
-    assert "coordinates states (ours; the reference's are one-hots" in model
+    assert "coordinates states one-hot per coordinate (ours; the reference embeds" in model
+    assert "beside the reference planner" in model
     cells = {**dicp, "train": {"by_objective": {"dicp": {"state_encoding": "cells"}}}}
     text = render_report(load_experiment(_spec(tmp_path, cells, "c")), [],
                          {"stages": [], "created": "now", "versions": {}}, tmp_path / "c")  # fmt: skip
-    assert "on the reference's cell states" in text and "(ours;" not in text
+    assert "states one-hot over the grid's cells (ours; the reference embeds context" in text
+    # a table that does not plan has no cell for the paper's (planned) DICP E
+    policy = {**dicp, "evaluate": {"plan_dicp": False}}
+    exp = load_experiment(_spec(tmp_path, policy, "p"))
+    text = render_report(exp, [], {"stages": [], "created": "now", "versions": {}}, tmp_path / "p")
+    assert "this table does not plan, so the paper's DICP E" in text
+    row = {"backbone": "DICP", "E": 0.1, "E_std": 0.01}
+    (dicp_reading,) = [r for r in readings(exp, [{"env_id": "darkroom", "arm": "lhf",
+                                                   "rows": [row]}]) if r["column"] == "DICP"]  # fmt: skip
+    assert dicp_reading["paper"] is None
 
 
 def test_a_custom_spec_s_report_names_it_by_its_path(tmp_path):
@@ -769,10 +779,15 @@ def test_a_spec_says_how_each_named_setting_was_chosen(tmp_path):
 
 
 def test_the_shipped_main_and_noisy_tables_say_how_their_settings_were_chosen():
-    for name in ("darkroom-main", "darkroom-noisy"):
+    for name in ("darkroom-main", "darkroom-noisy", "darkroom-main-learners"):
         exp = load_experiment(name, "cpu")
         chosen = {k: c["chosen"] for k, c in exp.choices.items()}
-        assert chosen["evaluate.rollouts"] == "validation"
+        # first set on test goals; the validation goals show one rollout is too few, not that 4
+        # beats 8, and do not tell the learning rates apart
+        assert chosen["evaluate.rollouts"] == chosen["train.lr"] == "test"
+        assert chosen["runs"] == "paper" and exp.runs == 3
+        if name == "darkroom-main-learners":
+            continue  # AD and DPT only
         # first fixed on test goals; the validation goals do not decide it (one seed per length)
         assert chosen["train.by_objective.dicp.max_steps"] == "test"
         assert exp.setting("train.by_objective.dicp.max_steps") == 4000
@@ -783,3 +798,15 @@ def test_the_shipped_main_and_noisy_tables_say_how_their_settings_were_chosen():
         # narrowed to AD and DPT: DICP's choices describe no cell of that table
         narrowed = load_experiment(name, "cpu", objectives=["ad", "dpt"]).choices
         assert "evaluate.rollouts" in narrowed and not [k for k in narrowed if "dicp" in k]
+
+
+def test_every_shipped_cpu_preset_says_how_each_of_its_settings_was_chosen():
+    """A reported table's reader finds a label for every setting its preset sets (the loader then
+    checks the list is complete), and a test-goal choice is labelled ``test``, never left out."""
+    for name in experiment_names():
+        exp = load_experiment(name, "cpu")
+        assert exp.choices, f"{name}: its cpu preset has no choices"
+        assert "runs" in exp.choices, name
+        # the learning rate was first picked on test goals wherever it is set
+        if "lr" in exp.train:
+            assert exp.choices["train.lr"]["chosen"] == "test", name
