@@ -100,6 +100,7 @@ def cell_settings(exp: Experiment, env: str, objective: str) -> dict[str, object
     if not get_spec(env).is_discrete:  # the greedy search has no tie order
         for d in evaluate.values():
             d.pop("plan_ties", None)
+            d.pop("plan_order", None)
     for d in (*evaluate.values(), train, collect, *filters.values()):
         d.pop("seed", None)  # the run's
         for k in PLACES:
@@ -125,6 +126,8 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
         fields[key] = value
     if planned_before_ties(summary) and "plan_ties" not in fields["evaluate"]:
         fields["evaluate"] = {**fields["evaluate"], "plan_ties": "policy"}
+    if planned_before_ties(summary, PLAN_ORDER_SINCE) and "plan_order" not in fields["evaluate"]:
+        fields["evaluate"] = {**fields["evaluate"], "plan_order": "argmax"}
     runs = rec.get("runs")
     if not isinstance(runs, int) or isinstance(runs, bool):
         raise UserError(f"experiment.runs is {runs!r}, not a number of runs")
@@ -191,28 +194,32 @@ def recorded_number(x) -> float | None:
 #: ``index``) planned with ties broken by the policy, a variant of ours (the outside review of
 #: issue 55 found it): their planned rows are that variant, and their cells are not current.
 PLAN_TIES_SINCE = "2026-12-06T11:02"  # commit 72c7fac
+#: Tables made before the beam search drew depth-0 ties from the policy (``plan_order``,
+#: ``sample``, the reference's) took them in the policy's argmax order, a variant of ours.
+PLAN_ORDER_SINCE = "2026-12-01T19:55"  # commit 899a901
 
 
-def planned_before_ties(summary: dict) -> bool:
-    """Whether the table was made before ``PLAN_TIES_SINCE`` (a record without a date: no)."""
+def planned_before_ties(summary: dict, since: str = PLAN_TIES_SINCE) -> bool:
+    """Whether the table was made before ``since`` (a record without a date: no)."""
     created = summary.get("created")
-    return isinstance(created, str) and created < PLAN_TIES_SINCE
+    return isinstance(created, str) and created < since
 
 
 def named(row: dict, summary: dict, env: str) -> dict:
     """``row`` with its backbone named as ``evaluation.compare`` names it now: a table whose spec
     gated every planned evaluation (``plan_gate``) recorded its planned rows as ``DICP + plan``,
     a variant that is not the reference planner, so it is read as ``DICP + plan, gated``; a table
-    made before ``PLAN_TIES_SINCE`` planned with ties by policy, which its rows on ``env`` then
-    name where the planner is the beam search (discrete actions)."""
+    made before ``PLAN_TIES_SINCE`` planned with ties by policy (before ``PLAN_ORDER_SINCE`` also
+    in argmax order at depth 0), which its rows on ``env`` then name where the planner is the beam
+    search (discrete actions)."""
     backbone = row["backbone"]
     gate = (summary.get("experiment", {}).get("evaluate") or {}).get("plan_gate", "always")
     if gate != "always" and backbone.endswith(" + plan"):
         backbone += ", gated"
-    if (
-        " + plan" in backbone and planned_before_ties(summary) and "ties by" not in backbone
-        and get_spec(env).is_discrete
-    ):  # fmt: skip
+    beam = " + plan" in backbone and get_spec(env).is_discrete
+    if beam and planned_before_ties(summary, PLAN_ORDER_SINCE) and "argmax order" not in backbone:
+        backbone += ", argmax order"
+    if beam and planned_before_ties(summary) and "ties by" not in backbone:
         backbone += ", ties by policy"
     return {**row, "backbone": backbone}
 

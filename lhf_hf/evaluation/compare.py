@@ -106,7 +106,13 @@ def _planning(config: dict, beam_search: bool = True) -> str:
     how = [
         *(["gated"] if config.get("plan_gate", "always") != "always" else []),
         *(["true dynamics"] if config.get("plan_dynamics", "model") != "model" else []),
-        *(["argmax order"] if config.get("plan_order", "sample") != "sample" else []),
+        # a record without the field predates it: its beam search took depth-0 ties in the
+        # policy's argmax order (like ``plan_ties`` below, a variant of ours)
+        *(
+            ["argmax order"]
+            if beam_search and config.get("plan_order", "argmax") != "sample"
+            else []
+        ),
         *(
             ["ties by policy"]
             if beam_search and config.get("plan_ties", "policy") != "index"

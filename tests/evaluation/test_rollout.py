@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from lhf_hf.cli.main import main
 from lhf_hf.configs import EvalConfig, TrainConfig
 from lhf_hf.envs import get_spec, task_split
 from lhf_hf.evaluation import compare, evaluate, make_task_batch, rollout
+from lhf_hf.evaluation.compare import backbone_of
 from lhf_hf.modeling import ICRLModel, attention_kernel, tree_attention
 from lhf_hf.training import model_config_for
 
@@ -348,13 +350,21 @@ def test_compare_errors(tmp_path):
     with pytest.raises(ValueError, match="are the same evaluation run"):
         compare([a, a], [a2, a3])
     # a planning variant is its own row: a gated run is never compared with the reference's
-    p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True, plan_ties="index")
+    ref = {"plan_ties": "index", "plan_order": "sample"}  # the reference planner's
+    p1 = fake_eval(tmp_path / "p1", "dicp", [1, 2], plan=True, **ref)
     with pytest.raises(ValueError, match=r"baseline \['DICP \+ plan'\] and LHF \['DICP \+ plan, gated'\]"):  # fmt: skip
-        compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen", plan_ties="index")])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p2", "dicp", [1, 2], plan=True, plan_gate="reward_seen", **ref)])  # fmt: skip
     # a planned run written before plan_ties existed broke ties by the policy: that variant's row
-    old = fake_eval(tmp_path / "p0", "dicp", [1, 2], plan=True)
+    old = fake_eval(tmp_path / "p0", "dicp", [1, 2], plan=True, plan_order="sample")
     with pytest.raises(ValueError, match=r"baseline \['DICP \+ plan, ties by policy'\] and LHF \['DICP \+ plan'\]"):  # fmt: skip
         compare([old], [p1])
+    # one written before plan_order existed took depth-0 ties in the policy's argmax order
+    older = fake_eval(tmp_path / "p00", "dicp", [1, 2], plan=True)
+    with pytest.raises(ValueError, match=r"\['DICP \+ plan, argmax order, ties by policy'\] and LHF \['DICP \+ plan'\]"):  # fmt: skip
+        compare([older], [p1])
+    # Meta-World's greedy search has no ties to order: no suffix for either field
+    mw = fake_eval(tmp_path / "mw", "dicp", [1, 2], env="metaworld-reach", plan=True)
+    assert backbone_of(json.loads((Path(mw) / "eval_results.json").read_text())) == "DICP + plan"
     # a damaged or hand-edited result is named, with what is wrong
     bad = tmp_path / "bad"
     for name, text, why in [
@@ -371,9 +381,9 @@ def test_compare_errors(tmp_path):
         with pytest.raises(ValueError, match=f"{name}/eval_results.json: .*{why}"):
             compare([a], [str(bad / name)])
     with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, true dynamics'\]"):
-        compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle", plan_ties="index")])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p3", "dicp", [1, 2], plan=True, plan_dynamics="oracle", **ref)])  # fmt: skip
     with pytest.raises(ValueError, match=r"LHF \['DICP \+ plan, reward p >= 0.9'\]"):
-        compare([p1], [fake_eval(tmp_path / "p4", "dicp", [1, 2], plan=True, plan_reward_threshold=0.9, plan_ties="index")])  # fmt: skip
+        compare([p1], [fake_eval(tmp_path / "p4", "dicp", [1, 2], plan=True, plan_reward_threshold=0.9, **ref)])  # fmt: skip
     # planner settings do not matter without planning; the defaults match results written before
     r = compare([fake_eval(tmp_path / "n1", "dicp", [1, 2])],
                 [fake_eval(tmp_path / "n2", "dicp", [2, 2], plan_gate="reward_seen", rollouts=1)])  # fmt: skip

@@ -75,6 +75,14 @@ def test_differences_are_of_each_cell_s_own_settings_defaults_filled_in():
     assert named(row, {**made, "created": PLAN_TIES_SINCE}, "darkroom")["backbone"] == "DICP + plan"
     # Meta-World plans with the greedy search: no tie order to name, no cell dated by it
     assert named(row, made, "metaworld-reach-wall")["backbone"] == "DICP + plan"
+    # before the reference's depth-0 order as well: argmax order, named and dated
+    older = {"experiment": now, "created": "2026-11-22T00:00:00+0000"}
+    assert named(row, older, "darkroom")["backbone"] == "DICP + plan, argmax order, ties by policy"
+    assert differences(recorded_experiment(older, exp), exp, "darkroom", "dicp") == [
+        "evaluate.plan.plan_order argmax (now sample)",
+        "evaluate.plan.plan_ties policy (now index)",
+    ]
+    assert named(row, older, "metaworld-reach-wall")["backbone"] == "DICP + plan"
     lam = load_experiment("darkroom-lambda", "cpu")
     fewer = json.loads(json.dumps(lam.to_dict()))
     fewer["filter"]["sweep"]["values"] = [0, 0.5, 1, 2]
