@@ -20,8 +20,8 @@ ones (``benchmarks/validation/remake.sh dicp`` runs this script on its own train
         --save-steps 500 --out runs/dicp56/baseline        # snapshots copied at log-spaced steps
     lhf evaluate --model SNAPSHOT --tasks validation --episodes 100 --rollouts 4 --seed 0 \
         [--plan [--plan-gate reward_seen] [--plan-reward-threshold P] [--plan-dynamics oracle]] \
-        --out EVAL/step-N-MODE          # MODE: policy; ref, refgated, refgatedthreshold99 (the
-        #   reference's ties, the default); made with ties by policy before it existed: plan,
+        --out EVAL/step-N-MODE          # MODE: policy; ref, refgated, refgatedthreshold99,
+        #   reforacle (the reference's ties, the default); made with ties by policy before it existed: plan,
         #   gated, oracle, threshold90, threshold99, gatedthreshold99 (MODES)
 
 then::
@@ -56,9 +56,10 @@ MODES = {
     "threshold99": "DICP + plan, reward p >= 0.99, ties by policy (ours)",
     "gatedthreshold99": "DICP + plan, gated, reward p >= 0.99, ties by policy (ours)",
     "oracle": "planner with the true dynamics (ties by policy)",
+    "reforacle": "planner with the true dynamics (the reference's tie order)",
 }
 #: the modes the plot draws (the others are in the JSON and the README's tables)
-PLOTTED = ("policy", "ref", "refgated", "refgatedthreshold99", "plan", "oracle")
+PLOTTED = ("policy", "ref", "refgated", "refgatedthreshold99", "plan", "oracle", "reforacle")
 LEVELS = {"AD (DICP paper)": 12.5, "DICP + plan (DICP paper)": 15.0}
 _FOLDER = re.compile(r"step-(\d+)-(\w+)$")
 
