@@ -2,11 +2,12 @@
 # Issue 56: one DICP trained far past the cpu presets' 4,000 steps, its snapshots evaluated on the
 # validation goals (results/validation/dicp_long/README.md).
 #
-#   benchmarks/validation/dicp_long.sh [STEPS]     # default 20000; ~1.7 h on 2 free cores
+#   benchmarks/validation/dicp_long.sh [STEPS [SEED]]   # default 20000 0; ~1.7 h on 2 free cores
 #
 # The data is remake.sh's (split 0's fit goals, paper protocol, 100 histories each); the model is
-# remake.sh's dicp-N model (the reference's reward loss, coordinates, lr 3e-3, batch 64, seed 0)
-# with its cosine over STEPS.  The trainer keeps its newest 2 checkpoints, so a watcher copies
+# remake.sh's dicp-N model (the reference's reward loss, coordinates, lr 3e-3, batch 64) with its
+# cosine over STEPS and training seed SEED (records: results/validation/dicp_long for seed 0,
+# dicp_long-seedSEED for another).  The trainer keeps its newest 2 checkpoints, so a watcher copies
 # checkpoint-N at the log-spaced N to snap-N as each appears; every snapshot, then the final
 # model, is evaluated without planning (policy) and with the reference planner (ref), 4 rollouts
 # of 100 episodes per validation goal, the final model also gated (refgated, ours) and with the
@@ -16,11 +17,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 steps="${1:-20000}"
+seed="${2:-0}"
 export OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE
 data=data/validation-fit
-w="runs/dicp-long-$steps"
+w="runs/dicp-long-$steps-seed$seed"
 ev="$w/eval"
 out=results/validation/dicp_long
+[ "$seed" = 0 ] || out="$out-seed$seed"
 snaps=(2000 4000 8000 12000 16000)
 mkdir -p "$ev"
 [ -f "$data/meta/info.json" ] || lhf collect darkroom --tasks fit --histories 100 \
@@ -52,7 +55,7 @@ if [ ! -f "$w/model/model.safetensors" ]; then
   watcher=$!
   trap 'kill "$watcher" 2>/dev/null || true' EXIT  # a failed training leaves no watcher behind
   lhf train --dataset "$data" --objective dicp --preset paper --max-steps "$steps" \
-    --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding coordinates --seed 0 \
+    --batch-size 64 --lr 3e-3 --reward-weighting data --state-encoding coordinates --seed "$seed" \
     --save-steps 1000 --no-progress --overwrite --out "$w/model" > "$w/train.log" 2>&1
   wait
 fi
