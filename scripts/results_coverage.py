@@ -124,9 +124,9 @@ def recorded_experiment(summary: dict, current: Experiment) -> Experiment:
         if not isinstance(value, dict):
             raise UserError(f"experiment.{key} is a {type(value).__name__}, not a mapping")
         fields[key] = value
-    if planned_before_ties(summary) and "plan_ties" not in fields["evaluate"]:
+    if made_before(summary) and "plan_ties" not in fields["evaluate"]:
         fields["evaluate"] = {**fields["evaluate"], "plan_ties": "policy"}
-    if planned_before_ties(summary, PLAN_ORDER_SINCE) and "plan_order" not in fields["evaluate"]:
+    if made_before(summary, PLAN_ORDER_SINCE) and "plan_order" not in fields["evaluate"]:
         fields["evaluate"] = {**fields["evaluate"], "plan_order": "argmax"}
     runs = rec.get("runs")
     if not isinstance(runs, int) or isinstance(runs, bool):
@@ -199,7 +199,7 @@ PLAN_TIES_SINCE = "2026-12-06T11:02"  # commit 72c7fac
 PLAN_ORDER_SINCE = "2026-12-01T19:55"  # commit 899a901
 
 
-def planned_before_ties(summary: dict, since: str = PLAN_TIES_SINCE) -> bool:
+def made_before(summary: dict, since: str = PLAN_TIES_SINCE) -> bool:
     """Whether the table was made before ``since`` (a record without a date: no)."""
     created = summary.get("created")
     return isinstance(created, str) and created < since
@@ -217,9 +217,9 @@ def named(row: dict, summary: dict, env: str) -> dict:
     if gate != "always" and backbone.endswith(" + plan"):
         backbone += ", gated"
     beam = " + plan" in backbone and get_spec(env).is_discrete
-    if beam and planned_before_ties(summary, PLAN_ORDER_SINCE) and "argmax order" not in backbone:
+    if beam and made_before(summary, PLAN_ORDER_SINCE) and "argmax order" not in backbone:
         backbone += ", argmax order"
-    if beam and planned_before_ties(summary) and "ties by" not in backbone:
+    if beam and made_before(summary) and "ties by" not in backbone:
         backbone += ", ties by policy"
     return {**row, "backbone": backbone}
 

@@ -26,8 +26,7 @@ out=results/validation/dicp_long
 [ "$seed" = 0 ] || out="$out-seed$seed"
 snaps=(2000 4000 8000 12000 16000)
 mkdir -p "$ev"
-[ -f "$data/meta/info.json" ] || lhf collect darkroom --tasks fit --histories 100 \
-  --protocol paper --collector batched --ppo-backend kernel --no-progress --out "$data"
+[ -f "$data/meta/info.json" ] || benchmarks/validation/remake.sh data  # its data, made its way
 
 copy_snapshots() {  # until the final model is written
   while [ ! -f "$w/model/model.safetensors" ]; do
